@@ -1,0 +1,20 @@
+"""The sensor description shared by the simulator, the model and the ROS nodes (no ROS import)."""
+
+from tactile_description.sensor import (
+    SENSOR_ENV,
+    BinGrid,
+    CameraSpec,
+    Crop,
+    FisheyeLens,
+    GelLayer,
+    ParticleSpec,
+    SensorConfigError,
+    SensorDescription,
+    default_sensor_path,
+    load_sensor,
+)
+
+__all__ = [
+    "SENSOR_ENV", "BinGrid", "CameraSpec", "Crop", "FisheyeLens", "GelLayer", "ParticleSpec",
+    "SensorConfigError", "SensorDescription", "default_sensor_path", "load_sensor",
+]
