@@ -1,0 +1,98 @@
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tactile_description import SENSOR_ENV, SensorConfigError, default_sensor_path, load_sensor
+
+CONFIG = Path(__file__).resolve().parents[3] / "config"
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return load_sensor(CONFIG / "sensor.yaml")
+
+
+def test_reference_sensor_matches_the_paper(reference):
+    assert (reference.grid.rows, reference.grid.cols) == (26, 25)
+    assert reference.grid.n_bins == 650
+    assert reference.grid.bin_width_m == pytest.approx(1.96e-3)
+    assert reference.grid.bin_length_m == pytest.approx(51e-3 / 26)  # 1.9615 mm: the paper rounds both to 1.96
+    assert reference.camera_ids == ("cam0", "cam1", "cam2", "cam3")
+    assert all(cam.output_size == (128, 128) and cam.capture_size == (320, 240) for cam in reference.cameras)
+
+
+def test_units_are_converted_to_si(reference):
+    base = reference.gel_layers[0]
+    assert base.name == "transparent_base"
+    assert base.thickness_m == pytest.approx(4e-3)
+    assert reference.particles.diameter_min_m == pytest.approx(150e-6)
+    assert reference.cameras[0].position_m == pytest.approx((12.25e-3, 12.75e-3, -8.5e-3))
+
+
+def test_bin_centres_cover_the_surface(reference):
+    centres = reference.grid.bin_centers_m()
+    assert centres.shape == (26, 25, 2)
+    half_bin = np.array([49e-3 / 25, 51e-3 / 26]) / 2
+    assert centres[0, 0] == pytest.approx(half_bin)
+    assert centres[-1, -1] == pytest.approx(np.array([49e-3, 51e-3]) - half_bin)
+    assert np.all(np.diff(centres[..., 0], axis=1) > 0) and np.all(np.diff(centres[..., 1], axis=0) > 0)
+
+
+def test_layer_depths_are_counted_from_the_surface(reference):
+    assert reference.layer_depth_range_m("protective_top") == pytest.approx((0.0, 1e-3))
+    assert reference.layer_depth_range_m("particle_layer") == pytest.approx((1e-3, 4e-3))
+    assert reference.gel_thickness_m == pytest.approx(8e-3)
+
+
+def test_larger_skin_loads_without_code_changes():
+    skin = load_sensor(CONFIG / "skin_3x3.yaml")
+    assert skin.n_cameras == 9
+    assert skin.grid.n_bins == 38 * 38
+
+
+def test_default_is_the_installed_description(monkeypatch):
+    monkeypatch.delenv(SENSOR_ENV, raising=False)
+    assert load_sensor().grid.n_bins == 650
+    assert default_sensor_path().name == "sensor.yaml"
+
+
+def test_environment_variable_overrides_the_default(monkeypatch):
+    monkeypatch.setenv(SENSOR_ENV, str(CONFIG / "skin_3x3.yaml"))
+    assert load_sensor().n_cameras == 9
+
+
+def _broken(tmp_path, edit):
+    raw = yaml.safe_load((CONFIG / "sensor.yaml").read_text())
+    edit(raw)
+    path = tmp_path / "broken.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda r: r["surface"].pop("bin_rows"), "missing key surface.bin_rows"),
+    (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be > 0"),
+    (lambda r: r["surface"].update(bin_cols=2.5), "surface.bin_cols must be an integer"),
+    (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), "poisson_ratio must be < 0.5"),
+    (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan), "must be a finite number"),
+    (lambda r: r["particles"].update(layer="nowhere"), "no gel layer named 'nowhere'"),
+    (lambda r: r["cameras"]["units"][1].update(id="cam0"), "camera ids must be unique"),
+    (lambda r: r["cameras"]["units"][0].update(position_mm=[10, 10, -2]), "inside the gel"),
+    (lambda r: r["cameras"]["crop"].update(width=400), "does not fit"),
+    (lambda r: r["cameras"].update(units=[]), "at least one camera"),
+])
+def test_bad_descriptions_name_the_faulty_key(tmp_path, edit, message):
+    with pytest.raises(SensorConfigError, match=message):
+        load_sensor(_broken(tmp_path, edit))
+
+
+def test_missing_and_corrupt_files_get_clear_errors(tmp_path):
+    with pytest.raises(SensorConfigError, match="cannot read sensor description"):
+        load_sensor(tmp_path / "absent.yaml")
+    corrupt = tmp_path / "corrupt.yaml"
+    corrupt.write_text("surface: [unclosed")
+    with pytest.raises(SensorConfigError, match="not valid YAML"):
+        load_sensor(corrupt)
