@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV := .venv
 VENV_STAMP := $(VENV)/.requirements-installed
 BUILD_STAMP := install/.workspace-built
-WORKSPACE_SOURCES := $(shell find src config launch -path '*/__pycache__' -prune -o \( -type f -o -type l \) -print 2>/dev/null) colcon.meta
+WORKSPACE_SOURCES := $(shell find -L src config launch -path '*/__pycache__' -prune -o -type f -print 2>/dev/null) colcon.meta
 IN_ENV := source scripts/env.sh &&
 
 .PHONY: setup demo test lint pytest model clean help
