@@ -1,0 +1,387 @@
+"""Indenters, contacts and the ground-truth force per bin (the labels the sensor learns).
+
+Note for cli.py: `tactile-sim press ... --json` prints `press_report(sensor, contact, model)` (json.dumps of it);
+build the contact with `press_contact(...)` from the command-line values and the model with
+`ground_truth_model(sensor, args.model)`. `benchmark_models(sensor)` gives the cost of each model for `bench`.
+
+Two ground-truth models share one interface (`GroundTruthModel.bin_forces(contacts)` -> (rows, cols, 3) newtons,
+compression positive, see tactile_msgs/msg/ForceDistribution.msg):
+
+- "analytic" (default, ~0.05 ms per contact): Hertz (sphere) or Sneddon (flat punch) pressure on the compliant
+  layer of elastic.compliant_layer, with the thin-layer stiffening of Dimitriadis et al. (2002) / Shull (2002),
+  and the Cattaneo-Mindlin partial-slip traction of a sheared press. The axisymmetric traction is integrated
+  exactly over rings of equal normal force, each ring split into angular sectors; the samples are binned with
+  floor(), so the bin forces add up to the contact force to float precision and never divide 0 by 0.
+  Several contacts superpose (each computed as if alone); samples off the surface are dropped.
+- "numerical" (contact_solver.py): the same layer, solved on a fine surface grid for any height map and for the
+  union of overlapping indenters (non-negative pressure by constrained conjugate gradients, FFT convolution).
+
+docs/simulator-physics.md gives the formulas, references, validity limits and the calibration.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from tactile_description import SensorDescription
+
+from .elastic import CompliantLayer, compliant_layer
+
+#: Deepest allowed press as a fraction of the compliant layer's thickness: beyond ~half the layer the strains
+#: are far outside linear elasticity (and the thin-layer series below outside its fitted range).
+MAX_DEPTH_LAYER_FRACTION = 0.5
+
+
+def _positive(value: float, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive finite number of metres, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """Rigid spherical indenter; the paper's indenter is 10 mm in diameter."""
+
+    radius_m: float = 0.005
+
+    def __post_init__(self):
+        object.__setattr__(self, "radius_m", _positive(self.radius_m, "Sphere.radius_m"))
+
+
+@dataclass(frozen=True)
+class FlatPunch:
+    """Rigid flat-ended cylinder pressed face down."""
+
+    radius_m: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "radius_m", _positive(self.radius_m, "FlatPunch.radius_m"))
+
+
+@dataclass(frozen=True, eq=False)
+class HeightMap:
+    """Rigid indenter of any shape: `heights_m[i, j]` is its surface height above its lowest point (>= 0, min 0).
+
+    Rows run along y, columns along x, `pixel_m` apart; the map is centred on the contact position (pixel (i, j)
+    sits at x = (j - (W - 1) / 2) * pixel_m, y = (i - (H - 1) / 2) * pixel_m from it). Outside the map the
+    indenter is absent. Only the "numerical" model takes height maps.
+    """
+
+    heights_m: np.ndarray
+    pixel_m: float
+
+    def __post_init__(self):
+        heights = np.array(self.heights_m, dtype=np.float64)
+        if heights.ndim != 2 or min(heights.shape) < 1:
+            raise ValueError(f"HeightMap.heights_m must be a 2-D (H, W) array, got shape {heights.shape}")
+        if not np.all(np.isfinite(heights)):
+            raise ValueError("HeightMap.heights_m contains NaN or Inf; use finite heights in metres")
+        if heights.min() != 0.0:
+            raise ValueError(f"HeightMap.heights_m must be heights above the indenter's lowest point (minimum 0), "
+                             f"got minimum {heights.min()!r} m: subtract heights_m.min()")
+        heights.setflags(write=False)
+        object.__setattr__(self, "heights_m", heights)
+        object.__setattr__(self, "pixel_m", _positive(self.pixel_m, "HeightMap.pixel_m"))
+
+
+Shape = Sphere | FlatPunch | HeightMap
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One indenter pressed `depth_m` into the surface at (x_m, y_m), then moved tangentially by `shear_m`."""
+
+    x_m: float
+    y_m: float
+    depth_m: float
+    shape: Shape = Sphere()
+    shear_m: tuple[float, float] = (0.0, 0.0)
+    friction: float = 1.0
+
+    def __post_init__(self):
+        for name in ("x_m", "y_m", "depth_m", "friction"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                    or not math.isfinite(value):
+                raise ValueError(f"Contact.{name} must be a finite number, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.depth_m < 0:
+            raise ValueError(f"Contact.depth_m must be >= 0 (indentation into the surface, metres), got {self.depth_m}")
+        if self.friction < 0:
+            raise ValueError(f"Contact.friction must be >= 0 (Coulomb coefficient), got {self.friction}")
+        if not isinstance(self.shape, (Sphere, FlatPunch, HeightMap)):
+            raise ValueError(f"Contact.shape must be a Sphere, FlatPunch or HeightMap, got {type(self.shape).__name__}")
+        shear = tuple(float(v) for v in np.asarray(self.shear_m, dtype=np.float64).ravel())
+        if len(shear) != 2 or not all(math.isfinite(v) for v in shear):
+            raise ValueError(f"Contact.shear_m must be two finite numbers (dx, dy) in metres, got {self.shear_m!r}")
+        object.__setattr__(self, "shear_m", shear)
+
+
+class GroundTruthModel(Protocol):
+    """What the simulator calls to label a frame."""
+
+    name: str
+
+    def bin_forces(self, contacts: Sequence[Contact]) -> np.ndarray:
+        """(rows, cols, 3) float64 bin forces in newtons, last axis (fx, fy, fz), fz > 0 in compression."""
+        ...
+
+
+def max_depth_m(sensor: SensorDescription, shape: Shape) -> float:
+    """Deepest allowed press for `shape` on this sensor; deeper presses raise ValueError (they are not clamped).
+
+    Half the compliant layer (2 mm on the reference sensor), and no deeper than the indenter itself is tall
+    (a sphere's radius, a height map's tallest point).
+    """
+    limit = MAX_DEPTH_LAYER_FRACTION * compliant_layer(sensor).thickness_m
+    if isinstance(shape, Sphere):
+        return min(limit, shape.radius_m)
+    if isinstance(shape, HeightMap):
+        return min(limit, float(shape.heights_m.max()))
+    return limit
+
+
+def check_depth(sensor: SensorDescription, contact: Contact) -> None:
+    limit = max_depth_m(sensor, contact.shape)
+    if contact.depth_m > limit:
+        raise ValueError(f"Contact.depth_m = {contact.depth_m * 1e3:.4g} mm is deeper than the deepest allowed press "
+                         f"of {limit * 1e3:.4g} mm for {contact.shape} on sensor {sensor.name!r} (half the compliant "
+                         f"gel, and not deeper than the indenter is tall); press less deep")
+
+
+# --- axisymmetric contact of a rigid indenter on the bonded layer ------------------------------------------------
+
+def dimitriadis_factor(chi: float) -> float:
+    """Force of a sphere on a bonded incompressible layer over the Hertz force, chi = sqrt(R d) / h.
+
+    Dimitriadis, Horkay, Maresca, Kachar, Chadwick, Biophys. J. 82 (2002) 2798, eq. for a layer bonded to a rigid
+    substrate with nu = 0.5 (the gel's nu = 0.49 is taken as incompressible here):
+    F = F_Hertz [1 + 1.133 chi + 1.283 chi^2 + 0.769 chi^3 + 0.0975 chi^4]; -> 1 as h -> infinity.
+    """
+    return 1.0 + chi * (1.133 + chi * (1.283 + chi * (0.769 + chi * 0.0975)))
+
+
+def shull_punch_factor(ratio: float) -> float:
+    """Stiffness of a flat punch of radius a on a bonded incompressible layer over Sneddon's, ratio = a / h.
+
+    Shull, Mater. Sci. Eng. R 36 (2002) 1, frictionless punch on a layer bonded to a rigid substrate:
+    P = 2 E* a d [1 + 1.33 (a/h) + 0.33 (a/h)^3]; -> 1 as h -> infinity.
+    """
+    return 1.0 + 1.33 * ratio + 0.33 * ratio**3
+
+
+@dataclass(frozen=True)
+class AxisymmetricLoad:
+    """Normal load of one axisymmetric contact: total force, contact radius, and the shape of its pressure."""
+
+    force_n: float
+    radius_m: float
+    kind: str  # "hertz": p ~ sqrt(1 - r^2/a^2); "punch": p ~ 1 / sqrt(1 - r^2/a^2)
+
+    def cumulative_fraction(self, r_m: np.ndarray) -> np.ndarray:
+        """Fraction of the force inside radius r (Johnson 1985 eqs. 4.22 (Hertz) and 3.35 (punch)), clipped."""
+        if self.radius_m <= 0.0:
+            return np.ones_like(r_m)
+        s = np.clip(1.0 - (np.asarray(r_m) / self.radius_m) ** 2, 0.0, 1.0)
+        return 1.0 - s**1.5 if self.kind == "hertz" else 1.0 - np.sqrt(s)
+
+    def radius_of_fraction(self, u: np.ndarray) -> np.ndarray:
+        """Inverse of cumulative_fraction: the radius inside which a fraction u of the force acts."""
+        u = np.clip(u, 0.0, 1.0)
+        if self.kind == "hertz":
+            return self.radius_m * np.sqrt(1.0 - (1.0 - u) ** (2.0 / 3.0))
+        return self.radius_m * np.sqrt(u * (2.0 - u))
+
+
+def normal_load(layer: CompliantLayer, shape: Sphere | FlatPunch, depth_m: float) -> AxisymmetricLoad:
+    """Hertz / Sneddon normal load on the layer, stiffened for its finite thickness.
+
+    Sphere (Hertz, Johnson eq. 4.23): a = sqrt(R d), F = (4/3) E* sqrt(R) d^(3/2) * dimitriadis_factor(a / h).
+    Flat punch (Sneddon 1965, Johnson eq. 3.36): a = punch radius, F = 2 E* a d * shull_punch_factor(a / h).
+    """
+    e_star = layer.plane_strain_modulus_pa
+    h = layer.thickness_m
+    if isinstance(shape, Sphere):
+        a = math.sqrt(shape.radius_m * depth_m)
+        force = 4.0 / 3.0 * e_star * math.sqrt(shape.radius_m) * depth_m**1.5 * dimitriadis_factor(a / h)
+        return AxisymmetricLoad(force, a, "hertz")
+    if isinstance(shape, FlatPunch):
+        a = shape.radius_m
+        return AxisymmetricLoad(2.0 * e_star * a * depth_m * shull_punch_factor(a / h), a, "punch")
+    raise ValueError(f"the analytic model takes Sphere and FlatPunch indenters, got {type(shape).__name__}: "
+                     f"use ground_truth_model(sensor, 'numerical') for height maps")
+
+
+def stick_depth_m(layer: CompliantLayer, contact: Contact) -> float:
+    """Depth d' whose contact area is the stick zone of the sheared contact (0: the whole contact slides).
+
+    Cattaneo-Mindlin in the form of Jaeger / Ciavarella (Ciavarella, Int. J. Solids Struct. 35 (1998) 2349):
+    the partial-slip traction is q = mu [p(d) - p(d')] with d - d' = 2 (1 - nu) |shear| / (mu (2 - nu)). For a
+    Hertz sphere this is Mindlin's c = a sqrt(1 - delta / delta_slip) (Johnson eqs. 7.39-7.42); for a flat punch it
+    is Mindlin's stick stiffness 8 G a / (2 - nu) up to gross slip.
+    """
+    shear = math.hypot(*contact.shear_m)
+    if contact.friction == 0.0 or shear == 0.0:
+        return contact.depth_m
+    nu = layer.poisson_ratio
+    return max(0.0, contact.depth_m - 2.0 * (1.0 - nu) * shear / (contact.friction * (2.0 - nu)))
+
+
+def contact_force_n(sensor: SensorDescription, contact: Contact) -> np.ndarray:
+    """(3,) total force (fx, fy, fz) of the whole analytic contact, including any part off the surface."""
+    check_depth(sensor, contact)
+    layer = compliant_layer(sensor)
+    if contact.depth_m == 0.0:
+        return np.zeros(3)
+    normal = normal_load(layer, contact.shape, contact.depth_m)
+    stick = normal_load(layer, contact.shape, stick_depth_m(layer, contact))
+    tangential = contact.friction * (normal.force_n - stick.force_n)
+    shear = math.hypot(*contact.shear_m)
+    direction = np.array(contact.shear_m) / shear if shear > 0 else np.zeros(2)
+    return np.array([tangential * direction[0], tangential * direction[1], normal.force_n])
+
+
+class AnalyticContactModel:
+    """Closed-form axisymmetric contacts sampled on rings x sectors and binned (see the module docstring).
+
+    `rings` rings of equal normal force, each split into `sectors` equal angular sectors (a multiple of 4, offset
+    by half a sector, so a sample set centred on a bin corner splits evenly between the four bins and mirrors
+    onto itself about x and y). 24 x 32 samples resolve a contact of radius a to ~a / 24 radially.
+    """
+
+    name = "analytic"
+
+    def __init__(self, sensor: SensorDescription, rings: int = 24, sectors: int = 32):
+        if rings < 1 or sectors < 4 or sectors % 4:
+            raise ValueError(f"rings must be >= 1 and sectors a positive multiple of 4, got {rings}, {sectors}")
+        self.sensor = sensor
+        self.layer = compliant_layer(sensor)
+        self._rings = rings
+        self._sectors = sectors
+        self._ring_edges = np.linspace(0.0, 1.0, rings + 1)           # cumulative force fractions
+        self._ring_mids = (np.arange(rings) + 0.5) / rings
+        angles = (np.arange(sectors) + 0.5) * (2.0 * math.pi / sectors)
+        self._cos = np.cos(angles)
+        self._sin = np.sin(angles)
+
+    def bin_forces(self, contacts: Sequence[Contact]) -> np.ndarray:
+        grid = self.sensor.grid
+        out = np.zeros(grid.n_bins * 3)
+        for contact in contacts:
+            if not isinstance(contact, Contact):
+                raise ValueError(f"contacts must hold Contact objects, got {type(contact).__name__}")
+            check_depth(self.sensor, contact)
+            if contact.depth_m > 0.0:
+                self._add_contact(contact, out)
+        return out.reshape(grid.rows, grid.cols, 3)
+
+    def _add_contact(self, contact: Contact, out: np.ndarray) -> None:
+        grid = self.sensor.grid
+        normal = normal_load(self.layer, contact.shape, contact.depth_m)
+        radii = normal.radius_of_fraction(self._ring_mids)
+        ring_normal = np.full(self._rings, normal.force_n / self._rings)
+
+        stick = normal_load(self.layer, contact.shape, stick_depth_m(self.layer, contact))
+        edges = normal.radius_of_fraction(self._ring_edges)
+        edges[-1] = max(normal.radius_m, stick.radius_m) * 2.0 + 1.0  # everything inside the last ring
+        cumulative_q = contact.friction * (normal.force_n * normal.cumulative_fraction(edges)
+                                           - stick.force_n * stick.cumulative_fraction(edges))
+        cumulative_q[0] = 0.0
+        ring_tangential = np.diff(cumulative_q)
+        shear = math.hypot(*contact.shear_m)
+        direction = np.array(contact.shear_m) / shear if shear > 0 else np.zeros(2)
+
+        x = contact.x_m + radii[:, None] * self._cos[None, :]
+        y = contact.y_m + radii[:, None] * self._sin[None, :]
+        col = np.floor(x / grid.bin_width_m)
+        row = np.floor(y / grid.bin_length_m)
+        on_surface = (col >= 0) & (col < grid.cols) & (row >= 0) & (row < grid.rows)
+        if not on_surface.any():
+            return
+        flat = (row * grid.cols + col)[on_surface].astype(np.int64)
+        per_sector = 1.0 / self._sectors
+        fz = np.broadcast_to(ring_normal[:, None] * per_sector, x.shape)[on_surface]
+        ft = np.broadcast_to(ring_tangential[:, None] * per_sector, x.shape)[on_surface]
+        size = grid.n_bins
+        out[2::3] += np.bincount(flat, weights=fz, minlength=size)
+        if direction.any():
+            out[0::3] += np.bincount(flat, weights=ft * direction[0], minlength=size)
+            out[1::3] += np.bincount(flat, weights=ft * direction[1], minlength=size)
+
+
+def ground_truth_model(sensor: SensorDescription, name: str = "analytic") -> GroundTruthModel:
+    """The ground-truth model called `name`: "analytic" (default, fast) or "numerical" (any height map)."""
+    if name == "analytic":
+        return AnalyticContactModel(sensor)
+    if name == "numerical":
+        from .contact_solver import NumericalContactModel
+
+        return NumericalContactModel(sensor)
+    raise ValueError(f"unknown ground-truth model {name!r}; choose 'analytic' or 'numerical'")
+
+
+# --- the `press` command and the benchmark --------------------------------------------------------------------------
+
+def press_contact(x_mm: float, y_mm: float, depth_mm: float, shape: str = "sphere", radius_mm: float | None = None,
+                  shear_x_mm: float = 0.0, shear_y_mm: float = 0.0, friction: float = 1.0) -> Contact:
+    """The contact described by the `tactile-sim press` options (millimetres, as typed on the command line)."""
+    if shape == "sphere":
+        indenter: Shape = Sphere() if radius_mm is None else Sphere(radius_mm * 1e-3)
+    elif shape == "punch":
+        if radius_mm is None:
+            raise ValueError("--shape punch needs --radius-mm (the punch radius in millimetres)")
+        indenter = FlatPunch(radius_mm * 1e-3)
+    else:
+        raise ValueError(f"--shape must be 'sphere' or 'punch', got {shape!r}")
+    return Contact(x_mm * 1e-3, y_mm * 1e-3, depth_mm * 1e-3, indenter, (shear_x_mm * 1e-3, shear_y_mm * 1e-3),
+                   friction)
+
+
+def press_report(sensor: SensorDescription, contact: Contact, model: GroundTruthModel) -> dict:
+    """The JSON object `tactile-sim press --json` prints: the bin forces of one contact and their total."""
+    forces = model.bin_forces([contact])
+    shape = contact.shape
+    return {
+        "sensor": sensor.name,
+        "model": model.name,
+        "contact": {
+            "x_mm": contact.x_m * 1e3, "y_mm": contact.y_m * 1e3, "depth_mm": contact.depth_m * 1e3,
+            "shape": type(shape).__name__,
+            "radius_mm": shape.radius_m * 1e3 if isinstance(shape, (Sphere, FlatPunch)) else None,
+            "shear_mm": [v * 1e3 for v in contact.shear_m], "friction": contact.friction,
+        },
+        "rows": sensor.grid.rows,
+        "cols": sensor.grid.cols,
+        "total_force_n": forces.sum(axis=(0, 1)).tolist(),
+        "loaded_bins": int(np.count_nonzero(np.any(forces != 0.0, axis=2))),
+        "bin_forces_n": forces.reshape(-1, 3).tolist(),
+    }
+
+
+def reference_press(sensor: SensorDescription) -> Contact:
+    """The paper's calibration press: the 10 mm sphere 1.5 mm deep at the centre of the surface."""
+    return Contact(0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m, 1.5e-3, Sphere(0.005))
+
+
+def benchmark_models(sensor: SensorDescription, repeats: int = 21, numerical_repeats: int = 5) -> dict:
+    """Median cost (ms per frame) of each ground-truth model on the reference press, plus its total force."""
+    contact = reference_press(sensor)
+    result = {}
+    for name, runs in (("analytic", repeats), ("numerical", numerical_repeats)):
+        model = ground_truth_model(sensor, name)
+        model.bin_forces([contact])  # warm-up (caches, kernels)
+        times = []
+        for _ in range(runs):
+            start = time.perf_counter()
+            forces = model.bin_forces([contact])
+            times.append(time.perf_counter() - start)
+        result[name] = {"ms_per_frame_median": 1e3 * float(np.median(times)), "runs": runs,
+                        "total_fz_n": float(forces[..., 2].sum())}
+    return result

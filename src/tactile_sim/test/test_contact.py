@@ -1,0 +1,244 @@
+"""The analytic ground-truth model: calibration, textbook limits, shapes, shear and the hard cases."""
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactile_description import GelLayer, load_sensor
+from tactile_sim.contact import (
+    Contact,
+    FlatPunch,
+    HeightMap,
+    Sphere,
+    contact_force_n,
+    dimitriadis_factor,
+    ground_truth_model,
+    max_depth_m,
+    press_contact,
+    press_report,
+    reference_press,
+)
+from tactile_sim.elastic import compliant_layer
+
+CONFIG = Path(__file__).resolve().parents[3] / "config"
+
+
+@pytest.fixture(scope="module")
+def sensor():
+    return load_sensor(CONFIG / "sensor.yaml")
+
+
+@pytest.fixture(scope="module")
+def model(sensor):
+    return ground_truth_model(sensor)
+
+
+def with_single_layer(sensor, thickness_m, youngs_modulus_pa=150e3, poisson_ratio=0.49):
+    layer = GelLayer("gel", thickness_m, youngs_modulus_pa, poisson_ratio)
+    return dataclasses.replace(sensor, gel_layers=(layer,), particles=dataclasses.replace(sensor.particles,
+                                                                                          layer="gel"))
+
+
+def centre(sensor):
+    return 0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m
+
+
+@pytest.mark.parametrize("name", ["sensor.yaml", "skin_3x3.yaml"])
+def test_reference_press_gives_about_3_newtons(name):
+    sensor = load_sensor(CONFIG / name)
+    forces = ground_truth_model(sensor).bin_forces([reference_press(sensor)])
+    assert forces[..., 2].sum() == pytest.approx(3.0, abs=0.15)
+    assert forces.shape == (sensor.grid.rows, sensor.grid.cols, 3)
+
+
+def test_half_space_limit_is_hertz(sensor):
+    """Thickness -> infinity: F = (4/3) E* sqrt(R) d^1.5 and a = sqrt(R d) (Johnson eq. 4.23) within 2 %."""
+    thick = with_single_layer(sensor, 100.0, youngs_modulus_pa=400e3, poisson_ratio=0.45)
+    e_star = 400e3 / (1 - 0.45**2)
+    radius, depth = 0.005, 1.0e-3
+    forces = ground_truth_model(thick).bin_forces([Contact(*centre(thick), depth, Sphere(radius))])
+    hertz = 4.0 / 3.0 * e_star * math.sqrt(radius) * depth**1.5
+    assert forces[..., 2].sum() == pytest.approx(hertz, rel=0.02)
+    # contact radius: the force-weighted r^2 of Hertz pressure is 2 a^2 / 5; the bins' own r^2 adds the bin
+    # area's second moment (w^2 / 6) - the binned distribution keeps the contact size
+    centres = thick.grid.bin_centers_m() - np.array(centre(thick))
+    r2 = (forces[..., 2] * (centres**2).sum(axis=-1)).sum() / forces[..., 2].sum()
+    contact_radius = math.sqrt(max(r2 - thick.grid.bin_width_m**2 / 6.0, 0.0) * 5.0 / 2.0)
+    assert contact_radius == pytest.approx(math.sqrt(radius * depth), rel=0.05)
+
+
+def test_thin_layer_is_stiffer_by_the_dimitriadis_factor(sensor):
+    radius, depth = 0.005, 1.0e-3
+    forces = {}
+    for h in (100.0, 8e-3, 4e-3, 3e-3):
+        layered = with_single_layer(sensor, h)
+        forces[h] = ground_truth_model(layered).bin_forces([Contact(*centre(sensor), depth)])[..., 2].sum()
+    for h in (8e-3, 4e-3, 3e-3):
+        chi = math.sqrt(radius * depth) / h
+        assert forces[h] / forces[100.0] == pytest.approx(1 + 1.133 * chi + 1.283 * chi**2 + 0.769 * chi**3
+                                                          + 0.0975 * chi**4, rel=1e-3)
+    assert forces[3e-3] > forces[4e-3] > forces[8e-3] > forces[100.0]
+    assert dimitriadis_factor(0.0) == 1.0
+
+
+def test_bin_forces_sum_to_the_contact_force(sensor, model):
+    for contact in [Contact(0.0213, 0.0187, 1.2e-3, shear_m=(2e-4, -1e-4), friction=0.8),
+                    Contact(0.03, 0.02, 0.7e-3, FlatPunch(0.003), shear_m=(-1e-5, 0.0))]:
+        forces = model.bin_forces([contact])
+        np.testing.assert_allclose(forces.sum(axis=(0, 1)), contact_force_n(sensor, contact), rtol=1e-12, atol=1e-15)
+
+
+def test_zero_depth_gives_exactly_zero(model):
+    forces = model.bin_forces([Contact(0.02, 0.02, 0.0), Contact(0.01, 0.01, 0.0, FlatPunch(0.002), (1e-4, 0))])
+    assert not forces.any()
+    assert not model.bin_forces([]).any()
+
+
+@pytest.mark.parametrize("shape", [Sphere(), FlatPunch(0.002)])
+def test_vanishing_depth_is_finite_and_tiny(sensor, model, shape):
+    contact = Contact(*centre(sensor), 1e-15, shape, shear_m=(1e-3, 0.0))  # 1e-12 mm
+    forces = model.bin_forces([contact])
+    assert np.all(np.isfinite(forces))
+    assert 0.0 < forces[..., 2].sum() < 1e-9
+    assert np.all(forces[..., 2] >= 0.0)
+    np.testing.assert_allclose(forces.sum(axis=(0, 1)), contact_force_n(sensor, contact), rtol=1e-12)
+
+
+def test_centre_on_a_bin_corner_splits_evenly(sensor, model):
+    w, lb = sensor.grid.bin_width_m, sensor.grid.bin_length_m
+    for depth in (1e-15, 1e-3):
+        forces = model.bin_forces([Contact(12 * w, 13 * lb, depth)])
+        block = forces[12:14, 11:13, 2]
+        np.testing.assert_allclose(block, block[0, 0], rtol=1e-9)
+        assert block.sum() == pytest.approx(forces[..., 2].sum(), rel=0.5 if depth > 1e-6 else 1e-12)
+
+
+def test_edges_corners_and_off_surface_keep_only_the_surface_part(sensor, model):
+    full = contact_force_n(sensor, Contact(0.0, 0.0, 1e-3))[2]
+    width, length = sensor.grid.width_m, sensor.grid.length_m
+    edge = model.bin_forces([Contact(0.0, 0.5 * length, 1e-3)])
+    corner = model.bin_forces([Contact(width, length, 1e-3)])
+    assert edge[..., 2].sum() == pytest.approx(0.5 * full, rel=0.02)     # half the contact is on the surface
+    assert corner[..., 2].sum() == pytest.approx(0.25 * full, rel=0.02)  # a quarter
+    assert corner[-1, -1, 2] > 0 and corner[0, 0, 2] == 0
+    outside = model.bin_forces([Contact(-0.01, 0.02, 1e-3), Contact(width + 0.01, length + 0.01, 1e-3)])
+    assert not outside.any()
+    for forces in (edge, corner):
+        assert np.all(np.isfinite(forces)) and np.all(forces[..., 2] >= 0)
+
+
+def test_overlapping_contacts_superpose(model):
+    a = Contact(0.020, 0.025, 1.0e-3)
+    b = Contact(0.022, 0.025, 0.8e-3, FlatPunch(0.002))
+    both = model.bin_forces([a, b])
+    np.testing.assert_allclose(both, model.bin_forces([a]) + model.bin_forces([b]), rtol=1e-12)
+
+
+def test_deepest_press_is_allowed_and_deeper_raises(sensor, model):
+    limit = max_depth_m(sensor, Sphere())
+    assert limit == pytest.approx(0.5 * compliant_layer(sensor).thickness_m)
+    forces = model.bin_forces([Contact(*centre(sensor), limit)])
+    assert np.all(np.isfinite(forces)) and forces[..., 2].sum() > 3.0
+    with pytest.raises(ValueError, match="deeper than the deepest allowed press"):
+        model.bin_forces([Contact(*centre(sensor), limit * 1.001)])
+    assert max_depth_m(sensor, Sphere(0.001)) == 0.001
+    assert max_depth_m(sensor, HeightMap(np.array([[0.0, 3e-4]]), 1e-4)) == 3e-4
+
+
+def test_shear_gives_mindlin_partial_slip_along_the_shear(sensor):
+    """Half-space Hertz + Mindlin (Johnson eq. 7.42): Q = mu P [1 - (1 - delta / delta_slip)^(3/2)]."""
+    thick = with_single_layer(sensor, 100.0, poisson_ratio=0.45)
+    model = ground_truth_model(thick)
+    layer = compliant_layer(thick)
+    radius, depth, mu = 0.005, 1e-3, 0.6
+    p = contact_force_n(thick, Contact(0.02, 0.02, depth))[2]
+    a = math.sqrt(radius * depth)
+    delta_slip = 3 * mu * p * (2 - layer.poisson_ratio) / (16 * layer.shear_modulus_pa * a)
+    direction = np.array([0.6, -0.8])
+    for fraction in (0.1, 0.5, 0.9, 1.5):
+        shear = tuple(fraction * delta_slip * direction)
+        forces = model.bin_forces([Contact(0.02, 0.02, depth, shear_m=shear, friction=mu)])
+        q = forces[..., :2].sum(axis=(0, 1))
+        expected = mu * p * (1 - (1 - min(fraction, 1.0)) ** 1.5)
+        assert np.linalg.norm(q) == pytest.approx(expected, rel=1e-4)  # 1e-4: a 100 m layer is not quite infinite
+        np.testing.assert_allclose(q / np.linalg.norm(q), direction, atol=1e-12)
+        # Coulomb: no bin carries more tangential force than mu times its normal force (tolerance: rounding)
+        assert np.all(np.linalg.norm(forces[..., :2], axis=-1) <= mu * forces[..., 2] * (1 + 1e-9) + 1e-15)
+
+
+def test_partial_slip_traction_peaks_at_the_slip_annulus(sensor, model):
+    """Mindlin's traction is mu p outside the stick zone and lower inside: small shear loads the rim first."""
+    x, y = centre(sensor)
+    forces = model.bin_forces([Contact(x, y, 1.5e-3, shear_m=(2e-5, 0.0))])
+    ratio = forces[..., 0] / np.where(forces[..., 2] > 0, forces[..., 2], np.inf)
+    row, col = int(y / sensor.grid.bin_length_m), int(x / sensor.grid.bin_width_m)
+    assert 0 < ratio[row, col] < ratio[row, col + 1] <= 1.0  # friction 1
+    assert ratio[row, col + 2] == 0  # outside the contact (radius 2.7 mm)
+
+
+def test_flat_punch_matches_sneddon_in_the_half_space(sensor):
+    thick = with_single_layer(sensor, 100.0, youngs_modulus_pa=300e3, poisson_ratio=0.4)
+    forces = ground_truth_model(thick).bin_forces([Contact(0.02, 0.02, 2e-4, FlatPunch(0.003))])
+    assert forces[..., 2].sum() == pytest.approx(2 * 300e3 / (1 - 0.4**2) * 0.003 * 2e-4, rel=1e-3)
+    # the edge-singular pressure loads bins at the rim more than at the centre (bin areas are equal)
+    loaded = forces[..., 2][forces[..., 2] > 0]
+    assert loaded.size >= 9
+
+
+def test_vertical_press_has_no_net_tangential_force(model):
+    forces = model.bin_forces([Contact(0.0213, 0.0301, 1.4e-3), Contact(0.01, 0.01, 1e-3, FlatPunch(0.002))])
+    assert not forces[..., :2].any()
+
+
+def test_height_map_needs_the_numerical_model(model):
+    with pytest.raises(ValueError, match="numerical"):
+        model.bin_forces([Contact(0.02, 0.02, 1e-4, HeightMap(np.array([[1e-3, 0.0, 1e-3]]), 1e-4))])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(x_m=0.0, y_m=0.0, depth_m=-1e-3), "depth_m must be >= 0"),
+    (dict(x_m=math.nan, y_m=0.0, depth_m=1e-3), "x_m must be a finite number"),
+    (dict(x_m=0.0, y_m=0.0, depth_m=1e-3, friction=-0.1), "friction must be >= 0"),
+    (dict(x_m=0.0, y_m=0.0, depth_m=1e-3, shear_m=(1.0,)), "shear_m must be two finite numbers"),
+    (dict(x_m=0.0, y_m=0.0, depth_m=1e-3, shape="sphere"), "shape must be a Sphere"),
+])
+def test_bad_contacts_are_rejected_clearly(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        Contact(**kwargs)
+
+
+def test_bad_shapes_are_rejected_clearly():
+    with pytest.raises(ValueError, match="radius_m must be a positive"):
+        Sphere(0.0)
+    with pytest.raises(ValueError, match="radius_m must be a positive"):
+        FlatPunch(math.inf)
+    with pytest.raises(ValueError, match="subtract heights_m.min"):
+        HeightMap(np.ones((2, 2)), 1e-4)
+    with pytest.raises(ValueError, match="2-D"):
+        HeightMap(np.zeros(4), 1e-4)
+
+
+def test_press_report_matches_bin_forces(sensor, model):
+    contact = press_contact(20.0, 30.0, 1.2, shear_x_mm=0.1)
+    report = json.loads(json.dumps(press_report(sensor, contact, model)))
+    forces = model.bin_forces([contact])
+    np.testing.assert_allclose(np.array(report["bin_forces_n"]).reshape(forces.shape), forces)
+    np.testing.assert_allclose(report["total_force_n"], forces.sum(axis=(0, 1)))
+    assert report["total_force_n"][0] > 0 and report["total_force_n"][1] == 0
+    assert report["loaded_bins"] == np.count_nonzero(forces[..., 2])
+    assert report["contact"]["depth_mm"] == pytest.approx(1.2)
+    punch = press_contact(20.0, 30.0, 0.5, shape="punch", radius_mm=2.0)
+    assert punch.shape == FlatPunch(0.002)
+    with pytest.raises(ValueError, match="--radius-mm"):
+        press_contact(20.0, 30.0, 0.5, shape="punch")
+    with pytest.raises(ValueError, match="--shape"):
+        press_contact(20.0, 30.0, 0.5, shape="cube")
+
+
+def test_unknown_model_name_is_rejected(sensor):
+    with pytest.raises(ValueError, match="'analytic' or 'numerical'"):
+        ground_truth_model(sensor, "fem")
