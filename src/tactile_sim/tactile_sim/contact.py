@@ -37,6 +37,11 @@ from .elastic import CompliantLayer, compliant_layer
 #: are far outside linear elasticity (and the thin-layer series below outside its fitted range).
 MAX_DEPTH_LAYER_FRACTION = 0.5
 
+#: Smallest radius at which the analytic model places its force samples. A vanishing contact (depth 1e-30 m) has
+#: a radius below the rounding of its position; without this floor its samples would all round onto the centre,
+#: and a centre exactly on a bin edge would load one side only instead of splitting evenly.
+MIN_SAMPLE_RADIUS_M = 1e-12
+
 
 def _positive(value: float, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
@@ -191,7 +196,7 @@ class AxisymmetricLoad:
         """Fraction of the force inside radius r (Johnson 1985 eqs. 4.22 (Hertz) and 3.35 (punch)), clipped."""
         if self.radius_m <= 0.0:
             return np.ones_like(r_m)
-        s = np.clip(1.0 - (np.asarray(r_m) / self.radius_m) ** 2, 0.0, 1.0)
+        s = 1.0 - np.minimum(np.asarray(r_m) / self.radius_m, 1.0) ** 2
         return 1.0 - s**1.5 if self.kind == "hertz" else 1.0 - np.sqrt(s)
 
     def radius_of_fraction(self, u: np.ndarray) -> np.ndarray:
@@ -287,7 +292,7 @@ class AnalyticContactModel:
     def _add_contact(self, contact: Contact, out: np.ndarray) -> None:
         grid = self.sensor.grid
         normal = normal_load(self.layer, contact.shape, contact.depth_m)
-        radii = normal.radius_of_fraction(self._ring_mids)
+        radii = np.maximum(normal.radius_of_fraction(self._ring_mids), MIN_SAMPLE_RADIUS_M)
         ring_normal = np.full(self._rings, normal.force_n / self._rings)
 
         stick = normal_load(self.layer, contact.shape, stick_depth_m(self.layer, contact))
