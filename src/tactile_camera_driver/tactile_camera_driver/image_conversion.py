@@ -1,0 +1,52 @@
+"""numpy <-> sensor_msgs/Image for the images of this stack, without cv_bridge.
+
+There is no ROS 2 cv_bridge on PyPI (and the PyPI `cv-bridge` port fails on numpy 2), and the stack only needs
+8-bit images, so the conversion is done here with numpy and validated field by field: a message whose size,
+step or encoding does not match its data is rejected with an error naming the camera, never silently reshaped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import Image
+from std_msgs.msg import Header
+
+#: Encodings we accept, with their channel count. Colour images are converted to mono by the consumer.
+CHANNELS = {"mono8": 1, "8UC1": 1, "bgr8": 3, "rgb8": 3}
+
+
+class ImageMessageError(ValueError):
+    """A sensor_msgs/Image that cannot be read as the image it claims to be."""
+
+
+def mono8_to_msg(image: np.ndarray, stamp: Time, frame_id: str) -> Image:
+    """A mono8 Image message holding a (H, W) uint8 array."""
+    if image.dtype != np.uint8 or image.ndim != 2:
+        raise ImageMessageError(f"{frame_id}: expected a (H, W) uint8 image, got {image.dtype} {image.shape}")
+    height, width = image.shape
+    msg = Image(header=Header(stamp=stamp, frame_id=frame_id), height=height, width=width, encoding="mono8",
+                is_bigendian=0, step=width)
+    msg.data = np.ascontiguousarray(image).tobytes()
+    return msg
+
+
+def msg_to_array(msg: Image, camera_id: str) -> np.ndarray:
+    """The pixels of an 8-bit Image message as (H, W) or (H, W, 3) uint8, honouring `step` (row padding)."""
+    channels = CHANNELS.get(msg.encoding)
+    if channels is None:
+        raise ImageMessageError(f"{camera_id}: unsupported encoding {msg.encoding!r}; expected one of "
+                                f"{sorted(CHANNELS)}")
+    row_bytes = msg.width * channels
+    if msg.height == 0 or msg.width == 0:
+        raise ImageMessageError(f"{camera_id}: empty image ({msg.width} x {msg.height})")
+    if msg.step < row_bytes:
+        raise ImageMessageError(f"{camera_id}: step {msg.step} is shorter than a row of {row_bytes} bytes")
+    if len(msg.data) != msg.step * msg.height:
+        raise ImageMessageError(f"{camera_id}: {len(msg.data)} data bytes, but step x height = "
+                                f"{msg.step} x {msg.height} = {msg.step * msg.height}")
+    rows = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(msg.height, msg.step)[:, :row_bytes]
+    if channels == 1:
+        return rows
+    pixels = rows.reshape(msg.height, msg.width, 3)
+    return pixels[:, :, ::-1] if msg.encoding == "rgb8" else pixels  # always hand out BGR, OpenCV's order

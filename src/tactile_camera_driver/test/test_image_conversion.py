@@ -1,0 +1,44 @@
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import Image
+
+from tactile_camera_driver.image_conversion import ImageMessageError, mono8_to_msg, msg_to_array
+
+
+def test_mono8_roundtrip_keeps_pixels_stamp_and_frame():
+    image = np.random.default_rng(0).integers(0, 256, (128, 96), dtype=np.uint8)
+    msg = mono8_to_msg(image, Time(sec=3, nanosec=5), "cam0_optical")
+    assert (msg.height, msg.width, msg.step, msg.encoding) == (128, 96, 96, "mono8")
+    assert msg.header.frame_id == "cam0_optical" and msg.header.stamp.nanosec == 5
+    np.testing.assert_array_equal(msg_to_array(msg, "cam0"), image)
+
+
+def test_row_padding_is_removed():
+    msg = Image(height=2, width=3, encoding="mono8", step=4)
+    msg.data = bytes([1, 2, 3, 99, 4, 5, 6, 99])
+    np.testing.assert_array_equal(msg_to_array(msg, "cam0"), [[1, 2, 3], [4, 5, 6]])
+
+
+def test_rgb_is_handed_out_as_bgr():
+    msg = Image(height=1, width=1, encoding="rgb8", step=3)
+    msg.data = bytes([10, 20, 30])
+    np.testing.assert_array_equal(msg_to_array(msg, "cam0")[0, 0], [30, 20, 10])
+
+
+@pytest.mark.parametrize("fields, data, message", [
+    ({"height": 2, "width": 2, "encoding": "mono16", "step": 4}, bytes(8), "unsupported encoding 'mono16'"),
+    ({"height": 2, "width": 2, "encoding": "mono8", "step": 2}, bytes(3), "3 data bytes"),
+    ({"height": 2, "width": 4, "encoding": "mono8", "step": 2}, bytes(4), "step 2 is shorter"),
+    ({"height": 0, "width": 0, "encoding": "mono8", "step": 0}, b"", "empty image"),
+])
+def test_inconsistent_messages_are_rejected_naming_the_camera(fields, data, message):
+    msg = Image(**fields)
+    msg.data = data
+    with pytest.raises(ImageMessageError, match=f"cam2: {message}"):
+        msg_to_array(msg, "cam2")
+
+
+def test_only_2d_uint8_images_are_published():
+    with pytest.raises(ImageMessageError, match="expected a \\(H, W\\) uint8 image"):
+        mono8_to_msg(np.zeros((4, 4), np.float32), Time(), "cam0")

@@ -1,0 +1,166 @@
+"""Approximate-time synchronisation of camera streams into bundles (one message per camera), without ROS.
+
+Semantics follow the ApproximateTime policy of ROS message_filters (C++): a bundle always contains the *pivot*,
+the latest of the queue heads once every queue holds a message, and among the bundles containing it the one with
+the smallest time spread is chosen. A bundle is emitted only once no message still to come could form a bundle
+with a smaller spread, so the output depends only on the timestamps, not on the arrival order across cameras.
+This is our own implementation of those documented semantics (message_filters has no PyPI wheel for ROS 2).
+
+Knobs, as in message_filters:
+- `max_spread_s` (max_interval_duration): a bundle whose best spread exceeds it is not emitted; the oldest head
+  is dropped instead (counted in `dropped`).
+- `min_period_s` (inter-message lower bound, per stream): the next message of a stream cannot be stamped earlier
+  than the last one plus this period, which lets a bundle be emitted without waiting for that message.
+
+Streams must be stamped in increasing order; a message stamped at or before its predecessor is dropped.
+Time is whatever unit the caller uses consistently (seconds in the nodes).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Generic, TypeVar
+
+Item = TypeVar("Item")
+
+
+@dataclass
+class Bundle(Generic[Item]):
+    """One synchronised set: `items[i]` and `stamps[i]` belong to stream `stream_ids[i]`."""
+
+    stream_ids: tuple[str, ...]
+    stamps: tuple[float, ...]
+    items: tuple[Item, ...]
+
+    @property
+    def spread(self) -> float:
+        return max(self.stamps) - min(self.stamps)
+
+
+@dataclass
+class SyncCounters:
+    """What the synchroniser had to drop, by reason (exposed as node diagnostics)."""
+
+    out_of_order: int = 0
+    queue_overflow: int = 0
+    too_wide: int = 0
+    superseded: int = 0
+    per_stream: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def total(self) -> int:
+        return self.out_of_order + self.queue_overflow + self.too_wide + self.superseded
+
+
+class ApproximateTimeSync(Generic[Item]):
+    """Feed messages with `add`; it returns the bundles they complete, oldest first."""
+
+    def __init__(self, stream_ids: list[str] | tuple[str, ...], queue_size: int = 10, max_spread_s: float = 0.02,
+                 min_period_s: float = 0.0):
+        if len(stream_ids) < 1 or len(set(stream_ids)) != len(stream_ids):
+            raise ValueError(f"stream ids must be unique and at least one, got {list(stream_ids)}")
+        if queue_size < 1:
+            raise ValueError(f"queue_size must be >= 1, got {queue_size}")
+        if not max_spread_s > 0 or min_period_s < 0:
+            raise ValueError(f"max_spread_s must be > 0 and min_period_s >= 0; got {max_spread_s}, {min_period_s}")
+        self.stream_ids = tuple(stream_ids)
+        self.queue_size = queue_size
+        self.max_spread_s = max_spread_s
+        self.min_period_s = min_period_s
+        self._queues: dict[str, deque[tuple[float, Any]]] = {s: deque() for s in self.stream_ids}
+        self._last_stamp: dict[str, float] = {}
+        self.dropped = SyncCounters(per_stream={s: 0 for s in self.stream_ids})
+
+    def add(self, stream_id: str, stamp: float, item: Item) -> list[Bundle[Item]]:
+        if stream_id not in self._queues:
+            raise KeyError(f"unknown stream {stream_id!r}; expected one of {list(self.stream_ids)}")
+        last = self._last_stamp.get(stream_id)
+        if last is not None and stamp <= last:
+            self._drop(stream_id, "out_of_order")
+            return []
+        self._last_stamp[stream_id] = stamp
+        queue = self._queues[stream_id]
+        queue.append((stamp, item))
+        if len(queue) > self.queue_size:
+            queue.popleft()
+            self._drop(stream_id, "queue_overflow")
+        bundles = []
+        while (bundle := self._next_bundle()) is not None:
+            bundles.append(bundle)
+        return bundles
+
+    def _drop(self, stream_id: str, reason: str, count: int = 1) -> None:
+        setattr(self.dropped, reason, getattr(self.dropped, reason) + count)
+        self.dropped.per_stream[stream_id] += count
+
+    def _next_bundle(self) -> Bundle[Item] | None:
+        while all(self._queues.values()):
+            pivot_stream = max(self.stream_ids, key=lambda s: self._queues[s][0][0])
+            pivot_stamp = self._queues[pivot_stream][0][0]
+            choice = self._best_bundle_around(pivot_stream, pivot_stamp)
+            if choice is None:
+                return None  # a message still to come could give a tighter bundle: wait for it
+            spread, picks = choice
+            if spread > self.max_spread_s:
+                oldest = min(self.stream_ids, key=lambda s: self._queues[s][0][0])
+                self._queues[oldest].popleft()
+                self._drop(oldest, "too_wide")
+                continue
+            return self._take(picks)
+        return None
+
+    def _best_bundle_around(self, pivot_stream: str, pivot_stamp: float) -> tuple[float, dict[str, int]] | None:
+        """The tightest bundle holding the pivot, or None while a future message could still beat it.
+
+        With the pivot fixed, each other stream contributes either its last message at or before the pivot
+        ("before", distance b_i) or its first message after it ("after", distance a_i); anything else is
+        dominated. The spread of a choice is max(b over "before" picks) + max(a over "after" picks), so trying
+        every threshold B on the before-distances covers all undominated bundles.
+        """
+        options = {}  # stream -> (before index, before distance, after index or None, after distance bound)
+        for s in self.stream_ids:
+            if s == pivot_stream:
+                continue
+            queue = self._queues[s]
+            before = max(i for i, (t, _) in enumerate(queue) if t <= pivot_stamp)  # the head qualifies
+            after = before + 1 if before + 1 < len(queue) else None
+            if after is not None:
+                after_distance = queue[after][0] - pivot_stamp
+            else:  # not arrived yet: it cannot be stamped before last + min_period (nor before the pivot)
+                after_distance = max(0.0, self._last_stamp[s] + self.min_period_s - pivot_stamp)
+            options[s] = (before, pivot_stamp - queue[before][0], after, after_distance)
+        best, best_picks, best_possible = 0.0, {}, 0.0
+        if options:
+            thresholds = sorted({opt[1] for opt in options.values()} | {0.0})
+            best = float("inf")
+            best_possible = float("inf")
+            for threshold in thresholds:
+                picks, after_max, known = {}, 0.0, True
+                for s, (before, b, after, a) in options.items():
+                    if b <= threshold:
+                        picks[s] = before
+                    else:
+                        picks[s] = after
+                        after_max = max(after_max, a)
+                        known = known and after is not None
+                spread = threshold + after_max
+                best_possible = min(best_possible, spread)
+                if known and spread < best:
+                    best, best_picks = spread, picks
+            if best == float("inf") or best_possible < best:
+                return None
+        best_picks[pivot_stream] = 0
+        return best, best_picks
+
+    def _take(self, picks: dict[str, int]) -> Bundle[Item]:
+        stamps, items = [], []
+        for s in self.stream_ids:
+            queue = self._queues[s]
+            for _ in range(picks[s]):  # older than the chosen message: can never be in a tighter later bundle
+                queue.popleft()
+                self._drop(s, "superseded")
+            stamp, item = queue.popleft()
+            stamps.append(stamp)
+            items.append(item)
+        return Bundle(self.stream_ids, tuple(stamps), tuple(items))

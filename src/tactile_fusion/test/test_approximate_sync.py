@@ -1,0 +1,151 @@
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tactile_fusion.approximate_sync import ApproximateTimeSync
+
+CAMERAS = ["cam0", "cam1", "cam2", "cam3"]
+PERIOD = 0.025  # 40 fps
+
+
+def camera_streams(n_frames, jitter_s, seed, offsets_s=(0.0, 0.003, -0.002, 0.001), missing=()):
+    """Per-camera (stamp, frame number) lists, like four free-running cameras at 40 fps."""
+    rng = np.random.default_rng(seed)
+    streams = {}
+    for cam, offset in zip(CAMERAS, offsets_s, strict=True):
+        stamps = np.arange(n_frames) * PERIOD + offset + rng.uniform(-jitter_s, jitter_s, n_frames)
+        streams[cam] = [(float(t), k) for k, t in enumerate(stamps) if (cam, k) not in missing]
+    return streams
+
+
+def interleave(streams, rng):
+    """All messages in a random arrival order that keeps each camera's own order."""
+    cursors = {cam: 0 for cam in streams}
+    order = []
+    while any(cursors[c] < len(streams[c]) for c in streams):
+        live = [c for c in streams if cursors[c] < len(streams[c])]
+        cam = live[rng.integers(len(live))]
+        order.append((cam, *streams[cam][cursors[cam]]))
+        cursors[cam] += 1
+    return order
+
+
+def by_arrival(streams, rng, max_delay_s=0.005):
+    """Messages in the order a network delivers them: capture stamp plus a random transport delay."""
+    messages = [(t + rng.uniform(0, max_delay_s), cam, t, k) for cam in streams for t, k in streams[cam]]
+    return [(cam, t, k) for _, cam, t, k in sorted(messages)]
+
+
+def run(sync, arrivals):
+    bundles = []
+    for cam, stamp, frame in arrivals:
+        bundles.extend(sync.add(cam, stamp, frame))
+    return bundles
+
+
+def test_free_running_cameras_are_matched_frame_by_frame():
+    streams = camera_streams(200, jitter_s=0.002, seed=1)
+    sync = ApproximateTimeSync(CAMERAS, max_spread_s=0.012)
+    bundles = run(sync, by_arrival(streams, np.random.default_rng(0)))
+    assert len(bundles) >= 198  # the last frames may wait for a successor that never comes
+    for k, bundle in enumerate(bundles):
+        assert bundle.items == (k, k, k, k)
+        assert bundle.spread <= 0.005 + 4 * 0.002
+        assert bundle.stream_ids == tuple(CAMERAS)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_output_depends_only_on_timestamps_not_on_arrival_order(seed):
+    streams = camera_streams(40, jitter_s=0.008, seed=seed)
+    results = []
+    for order_seed in (seed, seed + 1):
+        sync = ApproximateTimeSync(CAMERAS, max_spread_s=0.03, queue_size=100)
+        results.append([(b.stamps, b.items) for b in run(sync, interleave(streams, np.random.default_rng(order_seed)))])
+    assert results[0] == results[1]
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_each_bundle_is_the_tightest_holding_its_latest_message(seed):
+    """Brute force: no other choice of one message per camera holding the pivot (the latest first message)."""
+    streams = camera_streams(12, jitter_s=0.01, seed=seed)
+    sync = ApproximateTimeSync(CAMERAS, max_spread_s=1.0, queue_size=100)
+    bundles = run(sync, [(cam, t, k) for cam in CAMERAS for t, k in streams[cam]])  # camera by camera
+    assert bundles
+    first = bundles[0]  # the first bundle chooses among all messages; later ones among those not consumed
+    pivot = max(streams[cam][0][0] for cam in CAMERAS)
+    assert pivot in first.stamps
+    candidates = [[t for t, _ in streams[cam]] for cam in CAMERAS]
+    best = min(max(c) - min(c) for c in itertools.product(*candidates) if pivot in c)
+    assert first.spread == pytest.approx(best)
+
+
+def test_a_dropped_frame_costs_one_bundle_and_is_counted():
+    streams = camera_streams(50, jitter_s=0.001, seed=2, missing={("cam2", 20)})
+    sync = ApproximateTimeSync(CAMERAS, max_spread_s=0.01)
+    bundles = run(sync, by_arrival(streams, np.random.default_rng(3)))
+    frames = [b.items[0] for b in bundles]
+    assert 20 not in frames and 19 in frames and 21 in frames
+    assert all(len(set(b.items)) == 1 for b in bundles)  # never a mixed bundle
+    assert sync.dropped.total >= 3  # frame 20 of the other three cameras
+    assert sync.dropped.per_stream["cam2"] == 0
+
+
+def test_bundles_wider_than_the_limit_are_never_emitted():
+    sync = ApproximateTimeSync(["a", "b"], max_spread_s=0.005)
+    assert sync.add("a", 0.0, "a0") == []
+    assert sync.add("b", 0.010, "b0") == []  # a later "a" could still match b0
+    assert sync.add("a", 0.030, "a1") == []  # it did not: best was a0-b0, 10 ms wide, so a0 is dropped
+    assert sync.dropped.too_wide == 1
+    assert [b.items for b in sync.add("b", 0.031, "b1")] == [("a1", "b1")]
+
+
+def test_out_of_order_messages_are_dropped_and_counted():
+    sync = ApproximateTimeSync(["a", "b"])
+    sync.add("a", 1.0, "a0")
+    assert sync.add("a", 0.5, "late") == []
+    assert sync.dropped.out_of_order == 1 and sync.dropped.per_stream["a"] == 1
+
+
+def test_queue_overflow_drops_the_oldest():
+    sync = ApproximateTimeSync(["a", "b"], queue_size=3)
+    for k in range(5):
+        sync.add("a", k * 0.1, k)
+    assert sync.dropped.queue_overflow == 2
+    bundles = sync.add("b", 0.21, "b")
+    assert bundles and bundles[0].items[0] == 2
+
+
+def test_minimum_period_lets_a_bundle_out_without_waiting_for_the_next_frame():
+    waiting = ApproximateTimeSync(["a", "b"], max_spread_s=0.01)
+    eager = ApproximateTimeSync(["a", "b"], max_spread_s=0.01, min_period_s=0.02)
+    for sync in (waiting, eager):
+        sync.add("a", 0.000, "a0")
+    # b0 arrives 1 ms before a0's stamp... (pivot a0): a later b could be closer unless b cannot come that soon
+    assert waiting.add("b", -0.001, "b0") == []
+    assert [b.items for b in eager.add("b", -0.001, "b0")] == [("a0", "b0")]
+
+
+def test_single_stream_passes_through():
+    sync = ApproximateTimeSync(["only"])
+    assert [b.items for b in sync.add("only", 1.0, "x")] == [("x",)]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"stream_ids": []}, "at least one"),
+    ({"stream_ids": ["a", "a"]}, "unique"),
+    ({"stream_ids": ["a"], "queue_size": 0}, "queue_size"),
+    ({"stream_ids": ["a"], "max_spread_s": 0.0}, "max_spread_s"),
+])
+def test_bad_parameters_are_rejected(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ApproximateTimeSync(**kwargs)
+
+
+def test_unknown_stream_is_rejected():
+    with pytest.raises(KeyError, match="unknown stream 'cam9'"):
+        ApproximateTimeSync(CAMERAS).add("cam9", 0.0, None)
