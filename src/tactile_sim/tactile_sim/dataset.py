@@ -1,0 +1,178 @@
+"""Simulated data sets on disk: a directory of .npy arrays plus meta.json, written frame by frame.
+
+Format (version 1), for N frames, C cameras of H x W pixels, a rows x cols bin grid:
+  meta.json        format, format_version, complete, sensor_name, sensor_sha256, camera_ids, rows, cols,
+                   image_height, image_width, frame_count, frame_rate_hz, scene_name, scene_source, seed,
+                   ground_truth (model name), effects (names)
+  reference.npy    (C, H, W) uint8     the rest frames (no contact, no effects)
+  images.npy       (N, C, H, W) uint8  every camera of every frame, after the scene's effects
+  forces.npy       (N, rows, cols, 3) float32  ground-truth bin forces (fx, fy, fz), newtons, fz > 0 pressing
+  camera_ok.npy    (N, C) bool         False where a camera dropped out or froze
+  times_s.npy      (N,) float64        frame times
+  contacts.json    list of N lists of contacts {x_mm, y_mm, depth_mm, shape, radius_mm, shear_mm}
+The arrays are written through np.lib.format.open_memmap, so writing a data set holds one frame in memory;
+meta.json says `complete: false` until the last frame is on disk. `open_dataset` maps the arrays read-only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from tactile_description import SensorDescription
+from tactile_sim.contact import Contact
+from tactile_sim.scene import Scene
+
+FORMAT = "tactile_sim.dataset"
+FORMAT_VERSION = 1
+ARRAYS = ("reference", "images", "forces", "camera_ok", "times_s")
+
+
+class DatasetError(ValueError):
+    """A data set directory that is missing, incomplete, corrupt or made for another sensor."""
+
+
+def sensor_sha256(sensor: SensorDescription) -> str:
+    """Hash of everything in a sensor description except the file it came from."""
+    return hashlib.sha256(repr(dataclasses.replace(sensor, source="")).encode()).hexdigest()
+
+
+def _contact_record(contact: Contact) -> dict:
+    shape = contact.shape
+    radius = getattr(shape, "radius_m", None)
+    return {"x_mm": contact.x_m * 1e3, "y_mm": contact.y_m * 1e3, "depth_mm": contact.depth_m * 1e3,
+            "shape": type(shape).__name__, "radius_mm": None if radius is None else radius * 1e3,
+            "shear_mm": [v * 1e3 for v in contact.shear_m]}
+
+
+def _write_meta(directory: Path, meta: dict) -> None:
+    tmp = directory / "meta.json.tmp"
+    tmp.write_text(json.dumps(meta, indent=2) + "\n")
+    os.replace(tmp, directory / "meta.json")
+
+
+def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool = True,
+                  frames: int | None = None, overwrite: bool = False) -> Path:
+    """Stream `scene` (or its first `frames` frames) through the simulator `sim` into `out_dir`; returns the path.
+
+    Refuses a non-empty `out_dir` unless `overwrite` (then only the data set's own files are replaced).
+    """
+    directory = Path(out_dir)
+    if directory.exists() and not directory.is_dir():
+        raise DatasetError(f"output {directory} exists and is not a directory; choose another --out")
+    if directory.exists() and any(directory.iterdir()) and not overwrite:
+        raise DatasetError(f"output directory {directory} is not empty; choose a new one or pass overwrite=True "
+                           "(--overwrite)")
+    directory.mkdir(parents=True, exist_ok=True)
+    scene.validate(sim.sensor)
+    if frames is not None:
+        scene = scene.limited(frames)
+    sensor = sim.sensor
+    n, c = len(scene), sensor.n_cameras
+    height, width = sim.image_shape
+    meta = {
+        "format": FORMAT, "format_version": FORMAT_VERSION, "complete": False,
+        "sensor_name": sensor.name, "sensor_sha256": sensor_sha256(sensor), "camera_ids": list(sensor.camera_ids),
+        "rows": sensor.grid.rows, "cols": sensor.grid.cols, "image_height": height, "image_width": width,
+        "frame_count": n, "frame_rate_hz": sensor.frame_rate_hz, "scene_name": scene.name,
+        "scene_source": scene.source, "seed": scene.seed, "ground_truth": sim.ground_truth.name,
+        "effects": [e.name for e in scene.effects],
+    }
+    _write_meta(directory, meta)
+    np.save(directory / "reference.npy", sim.reference_images())
+    images = np.lib.format.open_memmap(directory / "images.npy", mode="w+", dtype=np.uint8, shape=(n, c, height, width))
+    forces = np.lib.format.open_memmap(directory / "forces.npy", mode="w+", dtype=np.float32,
+                                       shape=(n, sensor.grid.rows, sensor.grid.cols, 3))
+    camera_ok = np.lib.format.open_memmap(directory / "camera_ok.npy", mode="w+", dtype=bool, shape=(n, c))
+    times = np.lib.format.open_memmap(directory / "times_s.npy", mode="w+", dtype=np.float64, shape=(n,))
+    with (directory / "contacts.json.tmp").open("w") as contacts_file:
+        contacts_file.write("[\n")
+        for frame in tqdm(sim.stream(scene), total=n, disable=not progress, desc=f"{scene.name} -> {directory}",
+                          unit="frame"):
+            i = frame.index
+            images[i] = frame.images
+            forces[i] = frame.bin_forces_n
+            camera_ok[i] = frame.camera_ok
+            times[i] = frame.time_s
+            separator = ",\n" if i + 1 < n else "\n"
+            contacts_file.write(json.dumps([_contact_record(k) for k in frame.contacts]) + separator)
+        contacts_file.write("]\n")
+    for array in (images, forces, camera_ok, times):
+        array.flush()
+    del images, forces, camera_ok, times
+    os.replace(directory / "contacts.json.tmp", directory / "contacts.json")
+    meta["complete"] = True
+    _write_meta(directory, meta)
+    return directory
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A data set opened read-only; the frame arrays are memory-mapped (see the module docstring)."""
+
+    path: Path
+    meta: dict
+    reference: np.ndarray   # (C, H, W) uint8
+    images: np.ndarray      # (N, C, H, W) uint8
+    forces: np.ndarray      # (N, rows, cols, 3) float32
+    camera_ok: np.ndarray   # (N, C) bool
+    times_s: np.ndarray     # (N,) float64
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def contacts(self) -> list[list[dict]]:
+        """The contacts of every frame (read on demand: contacts.json)."""
+        return json.loads((self.path / "contacts.json").read_text())
+
+
+def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = None) -> Dataset:
+    """Open a data set directory written by write_dataset; with `sensor`, also check it was made for that sensor."""
+    directory = Path(path)
+    meta_path = directory / "meta.json"
+    if not meta_path.is_file():
+        raise DatasetError(f"{directory} is not a data set: no meta.json (write one with `tactile-sim generate`)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{meta_path} is not readable JSON ({exc}); regenerate the data set") from exc
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise DatasetError(f"{meta_path} does not describe a {FORMAT} data set")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(f"{directory} has format version {meta.get('format_version')!r}; this reader knows "
+                           f"version {FORMAT_VERSION}: regenerate the data set")
+    if not meta.get("complete"):
+        raise DatasetError(f"{directory} is incomplete (the writer stopped before the last frame); regenerate it")
+    try:
+        n, c = int(meta["frame_count"]), len(meta["camera_ids"])
+        h, w, rows, cols = (int(meta[k]) for k in ("image_height", "image_width", "rows", "cols"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"{meta_path} lacks or mangles a required key ({exc}); regenerate the data set") from exc
+    expected = {"reference": ((c, h, w), np.uint8), "images": ((n, c, h, w), np.uint8),
+                "forces": ((n, rows, cols, 3), np.float32), "camera_ok": ((n, c), np.bool_),
+                "times_s": ((n,), np.float64)}
+    arrays = {}
+    for name in ARRAYS:
+        file = directory / f"{name}.npy"
+        try:
+            array = np.load(file, mmap_mode="r")
+        except FileNotFoundError as exc:
+            raise DatasetError(f"{directory} lacks {file.name}; regenerate the data set") from exc
+        except (OSError, ValueError) as exc:
+            raise DatasetError(f"{file} is corrupt or truncated ({exc}); regenerate the data set") from exc
+        shape, dtype = expected[name]
+        if array.shape != shape or array.dtype != dtype:
+            raise DatasetError(f"{file} holds {array.dtype} {array.shape}, meta.json promises {np.dtype(dtype)} "
+                               f"{shape}; the directory mixes data sets: regenerate it")
+        arrays[name] = array
+    if sensor is not None and meta.get("sensor_sha256") != sensor_sha256(sensor):
+        raise DatasetError(f"{directory} was made for sensor {meta.get('sensor_name')!r} with another description "
+                           f"than {sensor.name!r} ({sensor.source}); regenerate it for this sensor")
+    return Dataset(path=directory, meta=meta, **arrays)

@@ -1,0 +1,55 @@
+"""The white microspheres spread in the particle layer, generated once and reproducibly from the description.
+
+The real sensor's particles are polyethylene spheres (150-180 um) mixed at random into the soft middle layer
+before it cures. Here they are placed uniformly at random in that layer with the density, diameter range and
+seed of the sensor description, so every part of the stack that builds a simulator sees the same particles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactile_description import SensorDescription
+
+
+@dataclass(frozen=True)
+class ParticleField:
+    """The particles at rest, in the sensor frame (z < 0 inside the gel)."""
+
+    positions_m: np.ndarray   # (N, 3) float64
+    diameters_m: np.ndarray   # (N,) float64
+    reflectance: np.ndarray   # (N,) float64 in (0, 1]: how white each sphere looks (surface and tint spread)
+
+    def __len__(self) -> int:
+        return len(self.positions_m)
+
+
+def particle_layer_volume_m3(sensor: SensorDescription) -> float:
+    top, bottom = sensor.layer_depth_range_m(sensor.particles.layer)
+    return sensor.grid.width_m * sensor.grid.length_m * (bottom - top)
+
+
+def generate_particles(sensor: SensorDescription) -> ParticleField:
+    """Particles spread uniformly in the particle layer; same description -> same particles.
+
+    The count is the description's density times the layer volume (rounded), not a Poisson draw, so that it
+    is a plain function of the description. Sphere centres keep one maximum radius away from the layer's
+    top and bottom faces (a sphere does not stick out of the layer it was cast in).
+    """
+    spec = sensor.particles
+    top, bottom = sensor.layer_depth_range_m(spec.layer)
+    margin = 0.5 * spec.diameter_max_m
+    if bottom - top <= 2 * margin:
+        raise ValueError(f"{sensor.source}: the particle layer {spec.layer!r} ({(bottom - top) * 1e3:.3f} mm) is "
+                         f"thinner than one particle ({spec.diameter_max_m * 1e6:.0f} um); make it thicker")
+    count = int(round(spec.per_m3 * particle_layer_volume_m3(sensor)))
+    rng = np.random.default_rng(spec.seed)
+    positions = np.empty((count, 3))
+    positions[:, 0] = rng.uniform(0.0, sensor.grid.width_m, count)
+    positions[:, 1] = rng.uniform(0.0, sensor.grid.length_m, count)
+    positions[:, 2] = -rng.uniform(top + margin, bottom - margin, count)
+    diameters = rng.uniform(spec.diameter_min_m, spec.diameter_max_m, count)
+    reflectance = rng.uniform(0.75, 1.0, count)
+    return ParticleField(positions_m=positions, diameters_m=diameters, reflectance=reflectance)

@@ -1,0 +1,239 @@
+"""What the cameras see: white particles as Gaussian spots on the dim, LED-lit black top layer.
+
+Appearance model (modelling choices, tuned to look like the paper's images, not measured):
+- A particle of diameter D at distance r from a camera images as a disc of radius
+  f * m(theta) * D / (2 r) capture pixels (f focal length, m the fisheye's local magnification relative to
+  the axis), blurred by the lens (Gaussian PSF, `psf_sigma_capture_px`: the paper notes that focus is not very
+  accurate). A uniform disc of radius a has variance a^2 / 4 per axis, so the spot is a Gaussian with
+  sigma^2 = a^2 / 4 + sigma_psf^2 that keeps the disc's light energy.
+- The disc's radiance is that of a white sphere under the LED light, which the stiff base layer diffuses into a
+  nearly uniform illumination of the particle layer; the lens' relative illumination falls off as cos(theta).
+  A far particle is dimmer only because its disc is smaller than the blur (its light energy, radiance times
+  disc area, is spread over the PSF): the inverse-square law of an unresolved source.
+- The background is the black protective layer seen through the clear silicone (the particle layer's top
+  face), lit the same way but much darker; rays that miss the surface see the sensor's dark frame.
+- Everything adds (particles are sparse: about 1 per mm^3) and the camera clips at 255.
+
+Two resolutions share this model: "capture" (320 x 240, what a real camera delivers, which
+tactile_description.imaging.crop_and_downsample turns into the model image) and "output" (the model image
+drawn directly, the fast path). A spot drawn directly at output resolution is the capture spot convolved
+with the area-averaging box of INTER_AREA (width w = crop / output capture pixels), whose variance adds
+w^2 / 12. The fast path's background is the capture background downsampled by INTER_AREA itself. The test
+suite checks that the two paths agree.
+
+Spots are drawn with one np.bincount over all cameras into a padded canvas (no Python loop over particles).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tactile_description import SensorDescription
+from tactile_sim.camera import CameraRig
+from tactile_sim.particles import ParticleField
+
+RESOLUTIONS = ("output", "capture")
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Appearance constants of the simulated sensor, in 8-bit grey levels (modelling choices, see module doc)."""
+
+    particle_radiance: float = 250.0        # a white particle large enough to fill pixels, on the optical axis
+    background_radiance: float = 30.0       # the black top layer, on the optical axis
+    frame_level: float = 6.0                # the sensor's frame, seen beyond the edges of the surface
+    psf_sigma_capture_px: float = 0.75      # lens blur, capture pixels
+    window_sigmas: float = 3.0              # a spot is drawn out to this many sigma (window of the bincount)
+    redraw_grey_levels: float = 0.5         # a moved particle is redrawn when it could change a pixel by more
+
+
+@dataclass(frozen=True)
+class Spots:
+    """Gaussian spots, one per (camera, particle) pair, in the pixels of one resolution."""
+
+    camera_index: np.ndarray  # (P,) int
+    uv_px: np.ndarray         # (P, 2)
+    sigma_px: np.ndarray      # (P,)
+    peak: np.ndarray          # (P,) grey levels at the centre
+
+
+class ParticleRenderer:
+    """Draws the particles of one sensor through all its cameras at one resolution, as float32 (C, H, W)."""
+
+    def __init__(self, sensor: SensorDescription, particles: ParticleField, resolution: str = "output",
+                 optics: Optics | None = None):
+        if resolution not in RESOLUTIONS:
+            raise ValueError(f"resolution must be one of {RESOLUTIONS}, got {resolution!r}")
+        self.sensor = sensor
+        self.particles = particles
+        self.resolution = resolution
+        self.optics = optics or Optics()
+        self.rig = CameraRig(sensor.cameras)
+        size = self.rig.output_size if resolution == "output" else self.rig.capture_size
+        self.width, self.height = size
+        self.n_cameras = self.rig.n_cameras
+        # Capture pixels per target pixel along x and y (1 at capture resolution).
+        self._box_px = 1.0 / self.rig.output_per_capture_px if resolution == "output" else np.ones(2)
+        self.max_sigma_px = float(self._sigma_px(self._nearest_disc_radius_capture_px()))
+        self.window_radius = max(1, math.ceil(self.optics.window_sigmas * self.max_sigma_px))
+        r = self.window_radius
+        self._padded = (self.height + 2 * r, self.width + 2 * r)
+        self._canvas_size = self.n_cameras * self._padded[0] * self._padded[1]
+        offsets = np.arange(-r, r + 1)
+        self._offsets = offsets.astype(np.float32)
+        self._taps = (offsets[:, None] * self._padded[1] + offsets[None, :]).ravel()   # flat window offsets
+        self.background = self._background()
+        n = len(particles)
+        self.rest_spots = self.spots(np.repeat(np.arange(self.n_cameras), n), np.tile(particles.positions_m,
+                                     (self.n_cameras, 1)), np.tile(np.arange(n), self.n_cameras))
+        # The rest spots' windows, kept so that a frame subtracts a moved particle's rest spot by a gather.
+        self._rest_taps, self._rest_weights = self.windows(self.rest_spots)
+        self.reference = self.background + self.crop_canvas(self._scatter(self._rest_taps, self._rest_weights))
+        self._min_redraw_m2 = self._min_redraw_displacement_m() ** 2                  # (C, N)
+        self._min_redraw_any_m2 = self._min_redraw_m2.min(axis=0)                     # (N,)
+
+    # --- appearance ---------------------------------------------------------------------------------------
+    def _nearest_disc_radius_capture_px(self) -> float:
+        """The largest particle disc at rest: the biggest sphere at the particle layer's bottom face on an axis."""
+        _, bottom = self.sensor.layer_depth_range_m(self.sensor.particles.layer)
+        nearest_m = float(np.min(-bottom - self.rig.centres_m[:, 2]))
+        return float(self.rig.focal_px.max()) * 0.5 * self.sensor.particles.diameter_max_m / nearest_m
+
+    def _sigma_px(self, disc_radius_capture_px):
+        """Spot sigma in target pixels: disc variance a^2/4 + PSF^2 (+ w^2/12 of the area downsampling)."""
+        variance = 0.25 * disc_radius_capture_px ** 2 + self.optics.psf_sigma_capture_px ** 2
+        box = float(self._box_px.mean())
+        return np.sqrt(variance + box * box / 12.0 * (box > 1.0)) / box
+
+    def spots(self, camera_index: np.ndarray, points_m: np.ndarray, particle_index: np.ndarray) -> Spots:
+        """Spots of particles (by index into the field, for diameter and reflectance) at `points_m`."""
+        o = self.optics
+        proj = self.rig.project(camera_index, points_m)
+        diameter = self.particles.diameters_m[particle_index]
+        # A sphere cannot come closer to the lens than about its own size (this also keeps 1 / 0 out).
+        distance = np.maximum(proj.distance_m, diameter)
+        disc_radius = self.rig.focal_px[camera_index] * proj.magnification * 0.5 * diameter / distance
+        sigma = np.minimum(self._sigma_px(disc_radius), self.max_sigma_px)
+        cos_theta = np.maximum(np.cos(proj.theta_rad), 0.0)
+        radiance = o.particle_radiance * self.particles.reflectance[particle_index] * cos_theta
+        # Light energy of the disc (radiance * pi a^2, in target pixels^2) spread over a Gaussian 2 pi sigma^2.
+        area_scale = 1.0 / float(np.prod(self._box_px))
+        peak = radiance * disc_radius ** 2 * area_scale / (2.0 * sigma ** 2)
+        uv = proj.uv_capture_px if self.resolution == "capture" else self.rig.capture_to_output_px(
+            camera_index, proj.uv_capture_px)
+        return Spots(camera_index=np.asarray(camera_index), uv_px=uv, sigma_px=sigma, peak=peak)
+
+    def _background(self) -> np.ndarray:
+        """(C, H, W) float32 background: the lit black top layer inside the surface, the dark frame outside."""
+        o = self.optics
+        cap_w, cap_h = self.rig.capture_size
+        v, u = np.mgrid[0:cap_h, 0:cap_w]
+        uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+        top, _ = self.sensor.layer_depth_range_m(self.sensor.particles.layer)
+        grid = self.sensor.grid
+        images = []
+        for cam in range(self.n_cameras):
+            rays = self.rig.ray_directions(cam, uv)
+            centre = self.rig.centres_m[cam]
+            upward = rays[:, 2] > 1e-6
+            travel = np.where(upward, (-top - centre[2]) / np.where(upward, rays[:, 2], 1.0), 0.0)
+            hit = centre[:2] + rays[:, :2] * travel[:, None]
+            inside = (upward & (hit[:, 0] >= 0) & (hit[:, 0] <= grid.width_m)
+                      & (hit[:, 1] >= 0) & (hit[:, 1] <= grid.length_m))
+            level = np.where(inside, o.background_radiance * np.clip(rays[:, 2], 0.0, 1.0), o.frame_level)
+            level = level.reshape(cap_h, cap_w).astype(np.float32)
+            if self.resolution == "output":
+                c = self.rig.crop
+                level = cv2.resize(level[c.y:c.y + c.height, c.x:c.x + c.width], self.rig.output_size,
+                                   interpolation=cv2.INTER_AREA)
+            images.append(level)
+        return np.stack(images)
+
+    def _min_redraw_displacement_m(self) -> np.ndarray:
+        """(C, N) smallest displacement of each particle that can change a pixel of a camera by
+        `redraw_grey_levels`: the steepest slope of a Gaussian spot is peak / (sigma sqrt(e)) per pixel, and a
+        displacement d moves the spot by at most |J|_F |d| pixels (J the projection's Jacobian)."""
+        n = len(self.particles)
+        jacobian = self.rig.jacobian_output_px_per_m(self.rest_spots.camera_index,
+                                                    np.tile(self.particles.positions_m, (self.n_cameras, 1)))
+        if self.resolution == "capture":
+            jacobian = jacobian / self.rig.output_per_capture_px[:, None]
+        px_per_m = np.sqrt((jacobian ** 2).sum(axis=(1, 2)))
+        grey_per_px = self.rest_spots.peak / (self.rest_spots.sigma_px * math.sqrt(math.e))
+        sensitivity = np.maximum(px_per_m * grey_per_px, 1e-12)
+        return (self.optics.redraw_grey_levels / sensitivity).reshape(self.n_cameras, n)
+
+    def render_displaced(self, displacements_m: np.ndarray) -> np.ndarray:
+        """(C, H, W) float32 image with the particles moved by `displacements_m` (N, 3): the fast path.
+
+        Starts from the reference (rest) image and redraws only the (camera, particle) pairs whose displacement
+        can change a pixel by `redraw_grey_levels` (see _min_redraw_displacement_m): the rest spot is
+        subtracted and the spot at the new position, with its new size and brightness, added.
+        """
+        disp = np.asarray(displacements_m)
+        moved2 = np.einsum("ij,ij->i", disp, disp)
+        candidates = np.flatnonzero(moved2 > self._min_redraw_any_m2)
+        if candidates.size == 0:
+            return self.reference.copy()
+        redraw = moved2[candidates] > self._min_redraw_m2[:, candidates]            # (C, M)
+        cams, which = np.nonzero(redraw)
+        particle = candidates[which]
+        new_taps, new_weights = self.windows(
+            self.spots(cams, self.particles.positions_m[particle] + disp[particle], particle))
+        rest = cams * len(self.particles) + particle
+        taps = np.concatenate([self._rest_taps[rest], new_taps])
+        weights = np.concatenate([-self._rest_weights[rest], new_weights])
+        return self.reference + self.crop_canvas(self._scatter(taps, weights))
+
+    # --- drawing ------------------------------------------------------------------------------------------
+    def windows(self, spots: Spots) -> tuple[np.ndarray, np.ndarray]:
+        """Each spot's window in the flat padded canvas: (P, K) tap indices and (P, K) float32 weights, K = (2r+1)^2.
+
+        The Gaussian is separable, so a window is the outer product of two 1-D profiles. A spot whose centre
+        pixel lies more than the window radius outside the image gets zero weights (it cannot reach a visible
+        pixel by more than exp(-window_sigmas^2 / 2) of its peak).
+        """
+        r = self.window_radius
+        hp, wp = self._padded
+        centre = np.rint(spots.uv_px)
+        frac = (centre - spots.uv_px).astype(np.float32)
+        col = centre[:, 0].astype(np.int64)
+        row = centre[:, 1].astype(np.int64)
+        visible = (col >= -r) & (col < self.width + r) & (row >= -r) & (row < self.height + r)
+        sigma = spots.sigma_px.astype(np.float32)
+        inv_two_var = np.float32(-0.5) / (sigma * sigma)
+        dx = frac[:, 0:1] + self._offsets
+        dy = frac[:, 1:2] + self._offsets
+        gx = np.exp(dx * dx * inv_two_var[:, None])
+        gy = np.exp(dy * dy * inv_two_var[:, None]) * (spots.peak * visible).astype(np.float32)[:, None]
+        base = np.where(visible, spots.camera_index * (hp * wp) + (row + r) * wp + (col + r), r * wp + r)
+        taps = base[:, None] + self._taps
+        weights = (gy[:, :, None] * gx[:, None, :]).reshape(len(base), -1)
+        return taps, weights
+
+    def _scatter(self, taps: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Flat float32 padded canvas (C * Hp * Wp) with each weight added at its tap."""
+        canvas = np.zeros(self._canvas_size, dtype=np.float32)
+        np.add.at(canvas, taps.ravel(), weights.ravel())
+        return canvas
+
+    def draw(self, spots: Spots) -> np.ndarray:
+        """(C, H, W) float32 image of the spots alone (no background)."""
+        return self.crop_canvas(self._scatter(*self.windows(spots)))
+
+    def crop_canvas(self, canvas: np.ndarray) -> np.ndarray:
+        """The visible (C, H, W) part of a flat padded canvas (a view)."""
+        r = self.window_radius
+        hp, wp = self._padded
+        return canvas.reshape(self.n_cameras, hp, wp)[:, r:r + self.height, r:r + self.width]
+
+    def render(self, positions_m: np.ndarray) -> np.ndarray:
+        """(C, H, W) float32 image with every particle drawn afresh at `positions_m` (N, 3): the slow, exact path."""
+        n = len(self.particles)
+        cams = np.repeat(np.arange(self.n_cameras), n)
+        spots = self.spots(cams, np.tile(positions_m, (self.n_cameras, 1)), np.tile(np.arange(n), self.n_cameras))
+        return self.background + self.draw(spots)

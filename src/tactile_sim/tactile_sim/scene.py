@@ -1,0 +1,403 @@
+"""Scenes: a YAML timeline of contacts plus the effects to apply (format in docs/simulator.md).
+
+A scene is a list of timeline segments, each a one-key mapping that expands into frames:
+  rest            frames without contact
+  press           one indenter at a fixed place, one frame per listed depth
+  contacts        one frame with several explicit contacts (repeated `repeat` times)
+  press_grid      vertical presses on a regular grid of positions, several depths each (the paper's data set)
+  random_presses  frames of 1..k simultaneous presses at random places/depths/shears, anywhere or at edges/corners
+  path            one press sliding along waypoints (the live demo)
+Frames are generated lazily and reproducibly: segment i draws from the random stream seeded (seed, 0, i), so
+the same file always gives the same contacts, and a shortened scene gives a prefix of the full one.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tactile_description import SensorDescription, default_sensor_path
+from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, max_depth_m
+from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
+
+MM = 1e-3
+SEGMENT_KINDS = ("rest", "press", "contacts", "press_grid", "random_presses", "path")
+REGIONS = ("surface", "edges", "corners")
+
+
+# --- reading typed values with errors that name the key -------------------------------------------------------------
+
+class _Node:
+    """One YAML mapping of a scene, with typed getters whose errors name the file and the key path."""
+
+    def __init__(self, node, where: str):
+        if not isinstance(node, dict):
+            raise SceneError(f"{where} must be a mapping, got {node!r}")
+        self.node = node
+        self.where = where
+        self._used: set[str] = set()
+
+    def has(self, key: str) -> bool:
+        return key in self.node
+
+    def raw(self, key: str, default=None, required: bool = False):
+        if key not in self.node:
+            if required:
+                raise SceneError(f"{self.where}: missing key {key!r}")
+            return default
+        self._used.add(key)
+        return self.node[key]
+
+    def number(self, key: str, default=None, low: float = -math.inf, high: float = math.inf) -> float:
+        value = self.raw(key, default, required=default is None)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or not low <= value <= high:
+            raise SceneError(f"{self.where}.{key} must be a number in [{low}, {high}], got {value!r}")
+        return float(value)
+
+    def count(self, key: str, default=None, low: int = 1) -> int:
+        value = self.raw(key, default, required=default is None)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise SceneError(f"{self.where}.{key} must be an integer >= {low}, got {value!r}")
+        return value
+
+    def numbers(self, key: str, length: int, default=None) -> tuple[float, ...]:
+        value = self.raw(key, default, required=default is None)
+        if not (isinstance(value, (list, tuple)) and len(value) == length and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+            raise SceneError(f"{self.where}.{key} must be a list of {length} numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+
+    def span(self, key: str, default=None, low: float = 0.0) -> tuple[float, float]:
+        """[min, max] with low <= min <= max; a single number means min = max."""
+        value = self.raw(key, default, required=default is None)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [value, value]
+        if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+                and low <= value[0] <= value[1]):
+            raise SceneError(f"{self.where}.{key} must be [min, max] with {low} <= min <= max, got {value!r}")
+        return float(value[0]), float(value[1])
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.node) - self._used)
+        if unknown:
+            raise SceneError(f"{self.where}: unknown key(s) {unknown}")
+
+
+def _indenter(node, where: str) -> Shape:
+    n = _Node(node, where)
+    kind = n.raw("shape", required=True)
+    if kind == "sphere":
+        shape: Shape = Sphere(0.5 * n.number("diameter_mm", low=0.1, high=1000) * MM)
+    elif kind == "flat_punch":
+        shape = FlatPunch(0.5 * n.number("diameter_mm", low=0.1, high=1000) * MM)
+    else:
+        raise SceneError(f"{where}.shape must be 'sphere' or 'flat_punch', got {kind!r}")
+    n.finish()
+    return shape
+
+
+# --- segments -------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Segment:
+    """One timeline entry: `kind`, its parameters (SI) and its frame count."""
+
+    kind: str
+    params: dict
+    n_frames: int
+    shapes: tuple[Shape, ...]
+    deepest_m: float
+    where: str
+
+    def frames(self, rng: np.random.Generator, grid) -> Iterator[tuple[Contact, ...]]:
+        return _GENERATORS[self.kind](self.params, rng, grid, self.n_frames)
+
+
+def _contact(node, where: str, default_shape: Shape) -> tuple[Contact, Shape]:
+    n = _Node(node, where)
+    shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
+    x = n.number("x_mm") * MM
+    y = n.number("y_mm") * MM
+    depth = n.number("depth_mm", low=0.0) * MM
+    shear = tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0]))
+    friction = n.number("friction", 1.0, low=0.0, high=10.0)
+    n.finish()
+    return Contact(x, y, depth, shape, shear, friction), shape
+
+
+def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
+    if not (isinstance(entry, dict) and len(entry) == 1):
+        raise SceneError(f"{where} must be a one-key mapping naming the segment kind {SEGMENT_KINDS}, got {entry!r}")
+    (kind, body), = entry.items()
+    if kind not in SEGMENT_KINDS:
+        raise SceneError(f"{where}: unknown segment kind {kind!r}; known kinds are {list(SEGMENT_KINDS)}")
+    where = f"{where}.{kind}"
+    n = _Node(body, where)
+    shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
+    params: dict = {"shape": shape}
+    if kind == "rest":
+        count, deepest = n.count("frames"), 0.0
+    elif kind == "press":
+        depths = n.raw("depths_mm", required=True)
+        if not (isinstance(depths, list) and depths and all(
+                isinstance(d, (int, float)) and not isinstance(d, bool) and math.isfinite(d) and d >= 0
+                for d in depths)):
+            raise SceneError(f"{where}.depths_mm must be a non-empty list of depths >= 0 (mm), got {depths!r}")
+        params.update(x_m=n.number("x_mm") * MM, y_m=n.number("y_mm") * MM,
+                      depths_m=tuple(d * MM for d in depths),
+                      shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])),
+                      friction=n.number("friction", 1.0, low=0.0, high=10.0))
+        count, deepest = len(depths), max(depths) * MM
+    elif kind == "contacts":
+        items = n.raw("contacts", required=True)
+        if not (isinstance(items, list) and items):
+            raise SceneError(f"{where}.contacts must be a non-empty list of contacts, got {items!r}")
+        parsed = [_contact(c, f"{where}.contacts[{i}]", shape) for i, c in enumerate(items)]
+        params["contacts"] = tuple(c for c, _ in parsed)
+        count = n.count("repeat", 1)
+        deepest = max(c.depth_m for c, _ in parsed)
+        shapes = tuple(s for _, s in parsed)
+        n.finish()
+        return Segment(kind, params, count, shapes, deepest, where)
+    elif kind == "press_grid":
+        params.update(cols=n.count("cols"), rows=n.count("rows"), margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
+                      jitter_m=n.number("jitter_mm", 0.0, low=0.0) * MM,
+                      depth_m=tuple(v * MM for v in n.span("depth_mm")),
+                      per_position=n.count("depths_per_position"))
+        count = params["cols"] * params["rows"] * params["per_position"]
+        deepest = params["depth_m"][1]
+    elif kind == "random_presses":
+        region = n.raw("region", "surface")
+        if region not in REGIONS:
+            raise SceneError(f"{where}.region must be one of {list(REGIONS)}, got {region!r}")
+        per_frame = n.raw("contacts_per_frame", 1)
+        if isinstance(per_frame, int) and not isinstance(per_frame, bool):
+            per_frame = [per_frame, per_frame]
+        if not (isinstance(per_frame, list) and len(per_frame) == 2 and all(isinstance(v, int) for v in per_frame)
+                and 1 <= per_frame[0] <= per_frame[1] <= 16):
+            raise SceneError(f"{where}.contacts_per_frame must be an integer or [min, max] with 1 <= min <= max <= 16, "
+                             f"got {per_frame!r}")
+        params.update(region=region, contacts_per_frame=tuple(per_frame),
+                      depth_m=tuple(v * MM for v in n.span("depth_mm")),
+                      shear_m=tuple(v * MM for v in n.span("shear_mm", [0.0, 0.0])),
+                      margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
+                      edge_band_m=tuple(v * MM for v in n.numbers("edge_band_mm", 2, [-2.0, 3.0])),
+                      min_separation_m=n.number("min_separation_mm", 0.0, low=0.0) * MM,
+                      friction=n.number("friction", 1.0, low=0.0, high=10.0))
+        if params["edge_band_m"][0] > params["edge_band_m"][1]:
+            raise SceneError(f"{where}.edge_band_mm must be [inner, outer] signed distances with inner <= outer")
+        count, deepest = n.count("frames"), params["depth_m"][1]
+    else:  # path
+        waypoints = n.raw("waypoints_mm", required=True)
+        if not (isinstance(waypoints, list) and len(waypoints) >= 2 and all(
+                isinstance(w, list) and len(w) == 2 and all(isinstance(v, (int, float)) for v in w)
+                for w in waypoints)):
+            raise SceneError(f"{where}.waypoints_mm must list at least two [x, y] points (mm), got {waypoints!r}")
+        count = n.count("frames", low=2)
+        params.update(waypoints_m=np.asarray(waypoints, dtype=np.float64) * MM,
+                      depth_m=n.number("depth_mm", low=0) * MM,
+                      ramp_frames=n.count("ramp_frames", 0, low=0),
+                      shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])))
+        if 2 * params["ramp_frames"] > count:
+            raise SceneError(f"{where}.ramp_frames ({params['ramp_frames']}) must be at most half of frames ({count})")
+        deepest = params["depth_m"]
+    n.finish()
+    return Segment(kind, params, count, (shape,), deepest, where)
+
+
+def _rest(p, rng, grid, n):
+    for _ in range(n):
+        yield ()
+
+
+def _press(p, rng, grid, n):
+    for depth in p["depths_m"]:
+        yield (Contact(p["x_m"], p["y_m"], depth, p["shape"], p["shear_m"], p["friction"]),)
+
+
+def _contacts(p, rng, grid, n):
+    for _ in range(n):
+        yield p["contacts"]
+
+
+def _press_grid(p, rng, grid, n):
+    """Grid positions (cell centres of a cols x rows grid inside the margin), each pressed at `per_position` depths:
+    evenly spread over the depth range with a random offset of up to half a step, and a uniform position jitter."""
+    low, high = p["depth_m"]
+    k = p["per_position"]
+    step = (high - low) / k
+    xs = p["margin_m"] + (np.arange(p["cols"]) + 0.5) * (grid.width_m - 2 * p["margin_m"]) / p["cols"]
+    ys = p["margin_m"] + (np.arange(p["rows"]) + 0.5) * (grid.length_m - 2 * p["margin_m"]) / p["rows"]
+    for y in ys:
+        for x in xs:
+            depths = low + (np.arange(k) + rng.uniform(0.0, 1.0, k)) * step
+            jitter = rng.uniform(-p["jitter_m"], p["jitter_m"], (k, 2))
+            for depth, (jx, jy) in zip(depths, jitter, strict=True):
+                yield (Contact(float(x + jx), float(y + jy), float(min(depth, high)), p["shape"]),)
+
+
+def _edge_point(region: str, band: tuple[float, float], rng, grid) -> tuple[float, float]:
+    """A point whose distance inside the nearest edge (negative: outside) is uniform in `band`, on a random edge
+    (region "edges") or near a random corner (region "corners", both coordinates in the band)."""
+    width, length = grid.width_m, grid.length_m
+    inward = rng.uniform(*band, 2)
+    if region == "corners":
+        corner = rng.integers(0, 2, 2)
+        return (float(inward[0] if corner[0] == 0 else width - inward[0]),
+                float(inward[1] if corner[1] == 0 else length - inward[1]))
+    edge = int(rng.integers(0, 4))
+    if edge < 2:  # x = 0 or x = width
+        return float(inward[0] if edge == 0 else width - inward[0]), float(rng.uniform(0.0, length))
+    return float(rng.uniform(0.0, width)), float(inward[1] if edge == 2 else length - inward[1])
+
+
+def _random_presses(p, rng, grid, n):
+    low, high = p["contacts_per_frame"]
+    margin = p["margin_m"]
+    for _ in range(n):
+        k = int(rng.integers(low, high + 1))
+        contacts: list[Contact] = []
+        for _ in range(64 * k):  # rejection sampling of well separated centres; gives up quietly on crowding
+            if len(contacts) == k:
+                break
+            if p["region"] == "surface":
+                x = float(rng.uniform(margin, grid.width_m - margin))
+                y = float(rng.uniform(margin, grid.length_m - margin))
+            else:
+                x, y = _edge_point(p["region"], p["edge_band_m"], rng, grid)
+            if any(math.hypot(x - c.x_m, y - c.y_m) < p["min_separation_m"] for c in contacts):
+                continue
+            magnitude = float(rng.uniform(*p["shear_m"]))
+            angle = float(rng.uniform(0.0, 2.0 * math.pi))
+            contacts.append(Contact(x, y, float(rng.uniform(*p["depth_m"])), p["shape"],
+                                    (magnitude * math.cos(angle), magnitude * math.sin(angle)), p["friction"]))
+        yield tuple(contacts)
+
+
+def _path(p, rng, grid, n):
+    """Constant speed along the waypoints; depth ramps linearly over the first and last `ramp_frames` frames."""
+    points = p["waypoints_m"]
+    lengths = np.hypot(*np.diff(points, axis=0).T)
+    arc = np.concatenate([[0.0], np.cumsum(lengths)])
+    ramp = p["ramp_frames"]
+    for i in range(n):
+        s = arc[-1] * i / (n - 1)
+        x, y = np.interp(s, arc, points[:, 0]), np.interp(s, arc, points[:, 1])
+        scale = min(1.0, (i + 1) / ramp, (n - i) / ramp) if ramp else 1.0
+        yield (Contact(float(x), float(y), p["depth_m"] * scale, p["shape"], p["shear_m"]),)
+
+
+_GENERATORS = {"rest": _rest, "press": _press, "contacts": _contacts, "press_grid": _press_grid,
+               "random_presses": _random_presses, "path": _path}
+
+
+# --- the scene ------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Scene:
+    """A parsed scene: name, seed, timeline segments, effect specs. `len(scene)` is its frame count."""
+
+    name: str
+    description: str
+    seed: int
+    segments: tuple[Segment, ...]
+    effects: tuple[EffectSpec, ...]
+    source: str
+    frame_limit: int | None = None
+
+    def __len__(self) -> int:
+        total = sum(s.n_frames for s in self.segments)
+        return total if self.frame_limit is None else min(total, self.frame_limit)
+
+    def limited(self, frames: int) -> Scene:
+        """The first `frames` frames of this scene (same contacts and effects as the full scene's prefix)."""
+        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+            raise SceneError(f"the frame limit must be an integer >= 1, got {frames!r}")
+        return replace(self, frame_limit=frames)
+
+    def contacts(self, sensor: SensorDescription) -> Iterator[tuple[Contact, ...]]:
+        """The contacts of each frame, in order (lazy; one tuple per frame)."""
+        emitted, total = 0, len(self)
+        for i, segment in enumerate(self.segments):
+            for contacts in segment.frames(np.random.default_rng([self.seed, 0, i]), sensor.grid):
+                if emitted == total:
+                    return
+                yield contacts
+                emitted += 1
+
+    def validate(self, sensor: SensorDescription) -> None:
+        """Check what needs the sensor: depths within max_depth_m, effect cameras among the sensor's."""
+        for segment in self.segments:
+            for shape in segment.shapes:
+                limit = max_depth_m(sensor, shape)
+                if segment.deepest_m > limit:
+                    raise SceneError(f"{self.source}: {segment.where} presses {segment.deepest_m / MM:.4g} mm deep, "
+                                     f"deeper than the deepest allowed press of {limit / MM:.4g} mm for {shape} on "
+                                     f"sensor {sensor.name!r}; use a smaller depth")
+        ctx = self.effect_context(sensor)
+        for effect in self.effects:
+            effect.camera_mask(ctx)
+
+    def effect_context(self, sensor: SensorDescription) -> EffectContext:
+        out = sensor.cameras[0].output_size
+        return EffectContext(camera_ids=sensor.camera_ids, image_shape=(out[1], out[0]),
+                             frame_rate_hz=sensor.frame_rate_hz, seed=self.seed, where=self.source)
+
+
+def scenes_directory() -> Path:
+    """Where the installed scenes live: next to the installed default sensor description."""
+    return default_sensor_path().parent / "scenes"
+
+
+def parse_scene(raw, source: str = "scene") -> Scene:
+    """A Scene from an already loaded YAML mapping (`source` names it in errors)."""
+    n = _Node(raw, source)
+    name = n.raw("name", required=True)
+    if not isinstance(name, str) or not name:
+        raise SceneError(f"{source}.name must be a non-empty string, got {name!r}")
+    description = n.raw("description", "")
+    seed = n.count("seed", low=0)
+    default_shape = _indenter(n.raw("indenter"), f"{source}.indenter") if n.has("indenter") else Sphere(0.005)
+    timeline = n.raw("timeline", required=True)
+    if not (isinstance(timeline, list) and timeline):
+        raise SceneError(f"{source}.timeline must be a non-empty list of segments {list(SEGMENT_KINDS)}")
+    segments = tuple(_parse_segment(e, f"{source}.timeline[{i}]", default_shape) for i, e in enumerate(timeline))
+    effects_raw = n.raw("effects", [])
+    if not isinstance(effects_raw, list):
+        raise SceneError(f"{source}.effects must be a list of effects, got {effects_raw!r}")
+    effects = tuple(parse_effect(e, f"{source}.effects[{i}]") for i, e in enumerate(effects_raw))
+    n.finish()
+    return Scene(name=name, description=str(description or ""), seed=seed, segments=segments, effects=effects,
+                 source=source)
+
+
+def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None = None) -> Scene:
+    """Read a scene file, or an installed scene by name ("paper_grid" -> <share>/config/scenes/paper_grid.yaml).
+
+    With `sensor`, also checks what depends on it (Scene.validate); the simulator always does before streaming.
+    """
+    path = Path(path_or_name)
+    if not path.exists() and path.suffix == "" and path.parent == Path("."):
+        path = scenes_directory() / f"{path_or_name}.yaml"
+        if not path.exists():
+            known = sorted(p.stem for p in path.parent.glob("*.yaml"))
+            raise SceneError(f"no scene file {path_or_name!r} and no installed scene of that name; installed scenes "
+                             f"are {known} (in {path.parent})")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file {path}: {exc.strerror}") from exc
+    except yaml.YAMLError as exc:
+        raise SceneError(f"scene file {path} is not valid YAML: {exc}") from exc
+    scene = parse_scene(raw, str(path))
+    if sensor is not None:
+        scene.validate(sensor)
+    return scene

@@ -1,0 +1,140 @@
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from tactile_description import load_sensor
+from tactile_sim.contact import FlatPunch, Sphere, max_depth_m
+from tactile_sim.effects import SceneError
+from tactile_sim.scene import load_scene, parse_scene, scenes_directory
+
+SHIPPED = ["paper_grid", "edge_corner", "multi_contact", "shear", "effects", "demo"]
+
+
+@pytest.fixture(scope="module")
+def sensor():
+    return load_sensor()
+
+
+@pytest.fixture(scope="module")
+def skin():
+    return load_sensor(scenes_directory().parent / "skin_3x3.yaml")
+
+
+def _all_contacts(scene, sensor):
+    return list(scene.contacts(sensor))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_scenes_load_for_both_sensors_and_respect_the_depth_limit(name, sensor, skin):
+    scene = load_scene(name, sensor)
+    load_scene(name, skin)
+    frames = _all_contacts(scene, sensor)
+    assert len(frames) == len(scene) > 0
+    for contacts in frames:
+        for c in contacts:
+            assert 0.0 <= c.depth_m <= max_depth_m(sensor, c.shape)
+            assert math.isfinite(c.x_m) and math.isfinite(c.y_m)
+
+
+def test_paper_grid_is_a_seeded_grid_of_vertical_sphere_presses_up_to_1_5_mm(sensor):
+    scene = load_scene("paper_grid", sensor)
+    frames = _all_contacts(scene, sensor)
+    assert 2000 <= len(frames) <= 5000
+    presses = [c for contacts in frames for c in contacts]
+    assert all(len(contacts) <= 1 for contacts in frames)
+    assert all(c.shape == Sphere(0.005) and c.shear_m == (0.0, 0.0) for c in presses)
+    depths = np.array([c.depth_m for c in presses])
+    assert depths.max() <= 1.5e-3 and depths.max() > 1.4e-3 and depths.min() < 0.2e-3
+    xy = np.array([(c.x_m, c.y_m) for c in presses])
+    assert xy[:, 0].min() < 4e-3 and xy[:, 0].max() > sensor.grid.width_m - 4e-3   # covers the whole surface
+    assert xy[:, 1].min() < 4e-3 and xy[:, 1].max() > sensor.grid.length_m - 4e-3
+    again = _all_contacts(load_scene("paper_grid", sensor), sensor)
+    assert again == frames                                                            # seeded: reproducible
+    assert [e.name for e in scene.effects] == ["sensor_noise"]
+
+
+def test_hard_case_scenes_are_what_their_names_say(sensor):
+    edge = [c for f in _all_contacts(load_scene("edge_corner"), sensor) for c in f]
+    off = [c for c in edge if not (0 <= c.x_m <= sensor.grid.width_m and 0 <= c.y_m <= sensor.grid.length_m)]
+    assert len(off) > 10                                             # some centres lie off the surface
+    multi = _all_contacts(load_scene("multi_contact"), sensor)
+    assert {len(f) for f in multi} == {2, 3, 4}
+    shear = [c for f in _all_contacts(load_scene("shear"), sensor) for c in f]
+    assert np.mean([math.hypot(*c.shear_m) >= 0.1e-3 for c in shear]) > 0.9
+    names = {e.name for e in load_scene("effects").effects}
+    assert names >= {"sensor_noise", "defocus_blur", "led_flicker", "illumination_drift", "exposure_saturation",
+                     "camera_dropout", "camera_misalignment", "reference_drift"}
+
+
+def test_a_limited_scene_is_a_prefix_of_the_full_one(sensor):
+    scene = load_scene("multi_contact")
+    assert len(scene.limited(7)) == 7
+    assert _all_contacts(scene.limited(7), sensor) == _all_contacts(scene, sensor)[:7]
+
+
+def test_demo_path_ramps_in_and_out(sensor):
+    frames = _all_contacts(load_scene("demo"), sensor)
+    depths = [f[0].depth_m if f else 0.0 for f in frames]
+    assert depths[0] == 0.0 and depths[-1] == 0.0 and max(depths) == pytest.approx(1e-3)
+
+
+def _scene(**overrides):
+    raw = {"name": "t", "seed": 1, "timeline": [{"rest": {"frames": 2}}]}
+    raw.update(overrides)
+    return raw
+
+
+@pytest.mark.parametrize("raw, message", [
+    (_scene(effects=[{"type": "lens_flare"}]), "unknown effect type 'lens_flare'"),
+    (_scene(effects=[{"type": "sensor_noise", "sigmaa": 1}]), "has no key 'sigmaa'"),
+    (_scene(effects=[{"type": "sensor_noise", "sigma": -1}]), "'sigma' must be a number > 0"),
+    (_scene(effects=[{"type": "camera_dropout"}]), "needs 'cameras'"),
+    (_scene(effects=[{"type": "camera_dropout", "cameras": ["cam0"], "frames": [5, 2]}]), "first < stop"),
+    (_scene(effects=[{"type": "camera_dropout", "cameras": ["cam0"], "mode": "grey"}]), "'black' or 'frozen'"),
+    (_scene(timeline=[{"press": {"x_mm": 1, "y_mm": 2}}]), "missing key 'depths_mm'"),
+    (_scene(timeline=[{"jump": {"frames": 1}}]), "unknown segment kind 'jump'"),
+    (_scene(timeline=[{"rest": {"frames": 1, "colour": "red"}}]), r"unknown key\(s\) \['colour'\]"),
+    (_scene(timeline=[]), "timeline must be a non-empty list"),
+    (_scene(indenter={"shape": "cube"}), "must be 'sphere' or 'flat_punch'"),
+    (_scene(seed="x"), "seed must be an integer"),
+    ({"seed": 1, "timeline": [{"rest": {"frames": 1}}]}, "missing key 'name'"),
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": [1.0, 0.5]}}]), "min <= max"),
+])
+def test_bad_scenes_get_clear_errors(raw, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(raw, "test.yaml")
+
+
+def test_depth_beyond_the_sensors_limit_is_refused(sensor):
+    limit_mm = max_depth_m(sensor, Sphere(0.005)) * 1e3
+    scene = parse_scene(_scene(timeline=[{"press": {"x_mm": 20, "y_mm": 20, "depths_mm": [limit_mm + 0.1]}}]))
+    with pytest.raises(SceneError, match="deeper than the deepest allowed press"):
+        scene.validate(sensor)
+
+
+def test_effect_naming_a_camera_the_sensor_lacks_is_refused(sensor):
+    scene = parse_scene(_scene(effects=[{"type": "defocus_blur", "cameras": ["cam7"]}]))
+    with pytest.raises(SceneError, match=r"names cameras \['cam7'\]"):
+        scene.validate(sensor)
+
+
+def test_flat_punch_contacts_and_explicit_frames(sensor):
+    scene = parse_scene(_scene(timeline=[{"contacts": {"repeat": 3, "contacts": [
+        {"x_mm": 10, "y_mm": 10, "depth_mm": 0.5, "indenter": {"shape": "flat_punch", "diameter_mm": 4}},
+        {"x_mm": 30, "y_mm": 30, "depth_mm": 1.0, "shear_mm": [0.2, 0.0]}]}}]))
+    frames = _all_contacts(scene, sensor)
+    assert len(frames) == 3 and frames[0][0].shape == FlatPunch(0.002) and frames[0][1].shear_m == (0.0002, 0.0)
+
+
+def test_unknown_scene_names_list_the_installed_ones(tmp_path):
+    with pytest.raises(SceneError, match="installed scenes are .*paper_grid"):
+        load_scene("no_such_scene")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: [unclosed")
+    with pytest.raises(SceneError, match="not valid YAML"):
+        load_scene(bad)
+    good = tmp_path / "good.yaml"
+    good.write_text(yaml.safe_dump(_scene()))
+    assert len(load_scene(good)) == 2

@@ -1,0 +1,88 @@
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from tactile_description import load_sensor
+from tactile_sim import Simulator, load_scene
+from tactile_sim.contact import Contact, Sphere
+from tactile_sim.scene import parse_scene, scenes_directory
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return Simulator(load_sensor())
+
+
+def test_stream_yields_every_frame_with_the_documented_arrays(sim):
+    scene = load_scene("multi_contact")
+    frames = list(sim.stream(scene, frames=5))
+    assert [f.index for f in frames] == list(range(5))
+    rows, cols = sim.sensor.grid.rows, sim.sensor.grid.cols
+    for f in frames:
+        assert f.images.shape == (4, 128, 128) and f.images.dtype == np.uint8
+        assert f.bin_forces_n.shape == (rows, cols, 3) and f.bin_forces_n.dtype == np.float32
+        assert np.all(np.isfinite(f.bin_forces_n)) and f.bin_forces_n[..., 2].sum() > 0.1
+        assert f.camera_ok.dtype == bool and f.camera_ok.all()
+        assert 2 <= len(f.contacts) <= 4
+    assert frames[1].time_s == pytest.approx(1 / sim.sensor.frame_rate_hz)
+
+
+def test_no_contact_gives_the_reference_frames(sim):
+    scene = parse_scene({"name": "rest", "seed": 1, "timeline": [{"rest": {"frames": 2}}]})
+    for f in sim.stream(scene):
+        np.testing.assert_array_equal(f.images, sim.reference_images())
+        assert not f.bin_forces_n.any()
+
+
+def test_reference_images_are_a_copy(sim):
+    ref = sim.reference_images()
+    ref[:] = 0
+    assert sim.reference_images().any()
+
+
+def test_deeper_presses_change_the_images_more(sim):
+    change = []
+    for depth in (0.3e-3, 0.8e-3, 1.5e-3):
+        forces = sim.bin_forces([Contact(0.02, 0.03, depth, Sphere(0.005))])
+        change.append(np.abs(sim.render(forces) - sim.renderer.reference).sum())
+    assert change[0] < change[1] < change[2]
+
+
+def test_streams_are_reproducible(sim):
+    scene = load_scene("effects")
+    a = [f.images for f in sim.stream(scene, frames=3)]
+    b = [f.images for f in sim.stream(scene, frames=3)]
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_streaming_memory_does_not_grow_with_the_number_of_frames(sim):
+    """Memory held by a running stream after 20 and after 120 frames is the same: nothing accumulates per frame."""
+    tracemalloc.start()
+    try:
+        held = {}
+        for frame in sim.stream(load_scene("paper_grid"), frames=121):
+            index = frame.index
+            del frame
+            if index in (20, 120):
+                held[index] = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    assert held[120] - held[20] < 64 * 1024
+
+
+def test_the_nine_camera_skin_renders_and_streams():
+    skin = load_sensor(scenes_directory().parent / "skin_3x3.yaml")
+    sim9 = Simulator(skin)
+    assert sim9.reference_images().shape == (9, 128, 128)
+    frames = list(sim9.stream(load_scene("multi_contact"), frames=2))
+    assert frames[0].images.shape == (9, 128, 128) and frames[0].camera_ok.shape == (9,)
+    assert frames[0].bin_forces_n.shape == (38, 38, 3)
+    changed = [np.abs(frames[0].images[c].astype(int) - sim9.reference_images()[c]).sum() for c in range(9)]
+    assert max(changed) > 1000
+
+
+def test_unknown_ground_truth_model_is_refused():
+    with pytest.raises(ValueError, match="unknown ground-truth model"):
+        Simulator(load_sensor(), ground_truth="magic")
