@@ -9,6 +9,8 @@ if [ ! -f "$_tactile_root/.venv/bin/activate" ] || [ ! -f "$_tactile_root/instal
     unset _tactile_root
     return 1 2>/dev/null || exit 1
 fi
+# The venv and colcon scripts read unset variables: allow that while sourcing them, restore the caller's setting.
+case $- in *u*) _tactile_nounset=1; set +u ;; *) _tactile_nounset= ;; esac
 # shellcheck disable=SC1091
 source "$_tactile_root/.venv/bin/activate"
 # The ROS wheels install their ament index and CMake configs into the venv itself.
@@ -18,6 +20,7 @@ case ":${CMAKE_PREFIX_PATH:-}:" in *":$VIRTUAL_ENV:"*) ;; *) export CMAKE_PREFIX
 # set before Python starts, which is why this is a file to source and not something Python could do itself.
 # shellcheck disable=SC1091
 source "$_tactile_root/install/setup.bash"
+[ -n "$_tactile_nounset" ] && set -u
 # Node executables live in install/<pkg>/lib/<pkg>, where `ros2 run` looks for them; put them on PATH too.
 for _tactile_dir in "$_tactile_root"/install/tactile_*/lib/tactile_*; do
     case ":$PATH:" in *":$_tactile_dir:"*) ;; *) [ -d "$_tactile_dir" ] && PATH="$_tactile_dir:$PATH" ;; esac
@@ -25,4 +28,4 @@ done
 export PATH
 # Keep DDS discovery on this machine unless the user chose otherwise.
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-unset _tactile_root _tactile_dir
+unset _tactile_root _tactile_dir _tactile_nounset

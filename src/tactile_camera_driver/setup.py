@@ -14,6 +14,10 @@ setup(
     zip_safe=True,
     maintainer="Tactile stack maintainers",
     maintainer_email="maintainers@tactile-stack.org",
-    description="Camera side of the tactile sensor.",
+    description="Camera drivers of the tactile sensor: real cameras and video files through OpenCV, and the simulator.",
     license="Apache-2.0",
+    entry_points={"console_scripts": [
+        "camera_node = tactile_camera_driver.camera_node:main",
+        "sim_camera_node = tactile_camera_driver.sim_camera_node:main",
+    ]},
 )

@@ -19,5 +19,9 @@ setup(
     maintainer_email="maintainers@tactile-stack.org",
     description="Force-distribution learning and inference for the multi-camera tactile sensor.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["tactile-fusion = tactile_fusion.cli:main"]},
+    entry_points={"console_scripts": [
+        "tactile-fusion = tactile_fusion.cli:main",
+        "bundle_node = tactile_fusion.bundle_node:main",
+        "fusion_node = tactile_fusion.fusion_node:main",
+    ]},
 )

@@ -3,7 +3,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 
-from tactile_camera_driver.image_conversion import ImageMessageError, mono8_to_msg, msg_to_array
+from tactile_conversions.images import ImageMessageError, mono8_to_msg, msg_to_array
 
 
 def test_mono8_roundtrip_keeps_pixels_stamp_and_frame():

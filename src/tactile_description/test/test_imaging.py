@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from tactile_camera_driver.preprocess import FrameError, crop_and_downsample, to_mono8
 from tactile_description import load_sensor
+from tactile_description.imaging import FrameError, crop_and_downsample, to_mono8
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,74 @@
+"""ROS node: the simulated sensor's cameras, publishing like real ones.
+
+Plays a simulator scene (default `demo`, looped) at the sensor's frame rate and publishes each camera's
+128 x 128 mono8 image on `/tactile/<camera_id>/image` with sensor-data QoS, stamped with the capture time
+(plus a per-camera offset of up to `stamp_jitter_s`, as free-running cameras have). A camera that the scene
+drops or freezes publishes nothing for that frame, exactly like a broken camera. The scene's ground truth goes
+out on `/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistribution) for live evaluation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+
+from tactile_conversions.forces import force_distribution_msg
+from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.ros_time import seconds_to_time
+from tactile_description import load_sensor
+from tactile_msgs.msg import ForceDistribution
+from tactile_sim import Simulator, load_scene
+
+
+class SimCameraNode(Node):
+    def __init__(self) -> None:
+        super().__init__("tactile_sim_cameras")
+        sensor_config = self.declare_parameter("sensor_config", "").value
+        scene_name = self.declare_parameter("scene", "demo").value
+        self.loop = bool(self.declare_parameter("loop", True).value)
+        self.stamp_jitter_s = float(self.declare_parameter("stamp_jitter_s", 0.002).value)
+        self.sensor = load_sensor(sensor_config or None)
+        rate_hz = float(self.declare_parameter("rate_hz", self.sensor.frame_rate_hz).value)
+        if rate_hz <= 0 or self.stamp_jitter_s < 0:
+            raise ValueError(f"rate_hz must be > 0 and stamp_jitter_s >= 0, got {rate_hz}, {self.stamp_jitter_s}")
+        self.simulator = Simulator(self.sensor)
+        self.scene = load_scene(scene_name, self.sensor)
+        self.frames = self.simulator.stream(self.scene)
+        self.rng = np.random.default_rng(0)
+        self.image_pubs = {c: self.create_publisher(Image, f"/tactile/{c}/image", qos_profile_sensor_data)
+                           for c in self.sensor.camera_ids}
+        self.truth_pub = self.create_publisher(ForceDistribution, "/tactile/ground_truth/force_distribution", 10)
+        self.create_timer(1.0 / rate_hz, self.publish_frame)
+        self.get_logger().info(f"simulating scene {scene_name!r} ({len(self.scene)} frames) at {rate_hz:.1f} Hz "
+                               f"for cameras {list(self.sensor.camera_ids)}")
+
+    def publish_frame(self) -> None:
+        frame = next(self.frames, None)
+        if frame is None:
+            if not self.loop:
+                return
+            self.frames = self.simulator.stream(self.scene)
+            frame = next(self.frames)
+        capture_s = self.get_clock().now().nanoseconds * 1e-9
+        for i, camera_id in enumerate(self.sensor.camera_ids):
+            if not frame.camera_ok[i]:
+                continue
+            stamp = seconds_to_time(capture_s + self.rng.uniform(0.0, self.stamp_jitter_s))
+            self.image_pubs[camera_id].publish(mono8_to_msg(frame.images[i], stamp, f"{camera_id}_optical"))
+        self.truth_pub.publish(force_distribution_msg(frame.bin_forces_n, self.sensor.grid, seconds_to_time(capture_s),
+                                                      self.sensor.frame_id, self.sensor.camera_ids, []))
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = SimCameraNode()
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
