@@ -13,7 +13,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
-        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.rviz")),
         ("share/" + package_name + "/config/scenes", glob("config/scenes/*.yaml")),
     ],
     install_requires=["setuptools"],
@@ -22,4 +22,5 @@ setup(
     maintainer_email="maintainers@tactile-stack.org",
     description="Launch files and configuration of the tactile sensor stack.",
     license="Apache-2.0",
+    entry_points={"console_scripts": ["tactile-demo = tactile_bringup.demo:main"]},
 )

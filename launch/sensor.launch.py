@@ -1,0 +1,50 @@
+"""Start the tactile sensor graph: cameras (real or simulated) -> bundles -> force distribution (-> RViz).
+
+    ros2 launch tactile_bringup sensor.launch.py                          # simulated sensor, demo scene
+    ros2 launch tactile_bringup sensor.launch.py source:=cameras camera_sources:=/path/to/sources.yaml
+    ros2 launch tactile_bringup sensor.launch.py rviz:=true
+
+The nodes and their parameters come from tactile_bringup.graph, the same description `tactile-demo` runs
+where no launch system is installed.
+"""
+
+from pathlib import Path
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from tactile_bringup.graph import sensor_graph
+from tactile_description import load_sensor
+
+SHARE = Path(get_package_share_directory("tactile_bringup"))
+ARGUMENTS = {
+    "sensor_config": (str(SHARE / "config" / "sensor.yaml"), "sensor description YAML"),
+    "source": ("sim", "'sim' (simulated sensor) or 'cameras' (OpenCV devices or video files)"),
+    "scene": ("demo", "simulator scene name or YAML file (source:=sim)"),
+    "camera_sources": (str(SHARE / "config" / "camera_sources.yaml"), "camera_id -> OpenCV source (source:=cameras)"),
+    "model_dir": ("", "trained model directory; empty: the shipped default model"),
+    "backend": ("onnxruntime", "inference backend: onnxruntime or torch"),
+    "precision": ("fp32", "fp32, fp16 or int8 (onnxruntime)"),
+    "rviz": ("false", "also start RViz with the force markers"),
+}
+
+
+def graph_nodes(context):
+    value = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
+    sensor = load_sensor(value["sensor_config"])
+    specs = sensor_graph(sensor, value["sensor_config"], value["source"], value["scene"], value["camera_sources"],
+                         value["model_dir"], value["backend"], value["precision"])
+    return [Node(package=s.package, executable=s.executable, name=s.name, parameters=[s.parameters], output="screen")
+            for s in specs]
+
+
+def generate_launch_description():
+    arguments = [DeclareLaunchArgument(name, default_value=default, description=text)
+                 for name, (default, text) in ARGUMENTS.items()]
+    rviz = Node(package="rviz2", executable="rviz2", arguments=["-d", str(SHARE / "config" / "tactile.rviz")],
+                condition=IfCondition(LaunchConfiguration("rviz")))
+    return LaunchDescription([*arguments, OpaqueFunction(function=graph_nodes), rviz])

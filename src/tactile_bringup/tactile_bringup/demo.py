@@ -1,0 +1,165 @@
+"""`tactile-demo`: run the sensor graph on the simulated sensor and watch the estimate against ground truth.
+
+Starts the nodes of tactile_bringup.graph as separate processes (what `ros2 launch tactile_bringup
+sensor.launch.py` starts where the launch system is installed), listens to `/tactile/force_distribution` and the
+simulator's `/tactile/ground_truth/force_distribution`, prints one line per second, stops the graph after
+`--duration` seconds and prints a summary (`--json`: one JSON object). Exits non-zero when the graph produced no
+estimate, or an estimate that breaks the message contract.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import statistics
+import subprocess
+import sys
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from ament_index_python.packages import get_package_prefix
+from rclpy.node import Node
+
+from tactile_bringup.graph import NodeSpec, sensor_graph
+from tactile_conversions.ros_time import time_to_seconds
+from tactile_description import default_sensor_path, load_sensor
+from tactile_msgs.msg import ForceDistribution
+
+
+def start(spec: NodeSpec, log_dir: Path) -> subprocess.Popen:
+    executable = Path(get_package_prefix(spec.package)) / "lib" / spec.package / spec.executable
+    log = open(log_dir / f"{spec.name}.log", "w")  # noqa: SIM115 - closed with the process in stop()
+    return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT)
+
+
+def stop(processes: list[subprocess.Popen]) -> None:
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+        if process.stdout:
+            process.stdout.close()
+
+
+class Monitor(Node):
+    """Collects estimates and matches each to the ground truth of the same capture time."""
+
+    def __init__(self, rows: int, cols: int) -> None:
+        super().__init__("tactile_demo_monitor")
+        self.rows, self.cols = rows, cols
+        self.truths: deque[tuple[float, np.ndarray]] = deque(maxlen=200)
+        self.latencies_s: list[float] = []
+        self.arrivals_s: list[float] = []
+        self.errors_n: list[np.ndarray] = []  # per matched estimate: (rows, cols, 3) estimate - truth
+        self.violations: list[str] = []
+        self.missing_cameras: set[str] = set()
+        self.last: tuple[float, float] | None = None  # (estimated Fz, true Fz)
+        self.create_subscription(ForceDistribution, "/tactile/force_distribution", self.on_estimate, 50)
+        self.create_subscription(ForceDistribution, "/tactile/ground_truth/force_distribution", self.on_truth, 50)
+
+    def forces(self, msg: ForceDistribution) -> np.ndarray:
+        return np.asarray(msg.forces_n, dtype=np.float64).reshape(msg.rows, msg.cols, 3)
+
+    def on_truth(self, msg: ForceDistribution) -> None:
+        self.truths.append((time_to_seconds(msg.header.stamp), self.forces(msg)))
+
+    def on_estimate(self, msg: ForceDistribution) -> None:
+        now_s = self.get_clock().now().nanoseconds * 1e-9
+        stamp_s = time_to_seconds(msg.header.stamp)
+        self.arrivals_s.append(now_s)
+        self.latencies_s.append(now_s - stamp_s)
+        self.missing_cameras.update(msg.missing_camera_ids)
+        if (msg.rows, msg.cols) != (self.rows, self.cols) or len(msg.forces_n) != self.rows * self.cols * 3:
+            self.violations.append(f"grid {msg.rows} x {msg.cols} with {len(msg.forces_n)} values")
+            return
+        estimate = self.forces(msg)
+        if not np.isfinite(estimate).all():
+            self.violations.append("non-finite force")
+            return
+        total = np.array([msg.total_force_n.x, msg.total_force_n.y, msg.total_force_n.z])
+        if not np.allclose(total, estimate.sum(axis=(0, 1)), atol=1e-4):
+            self.violations.append("total_force_n is not the sum of the bins")
+        if not self.truths:
+            return
+        truth_stamp, truth = min(self.truths, key=lambda t: abs(t[0] - stamp_s))
+        if abs(truth_stamp - stamp_s) < 0.01:  # the bundle stamp is the median of jittered camera stamps
+            self.errors_n.append(estimate - truth)
+            self.last = (float(estimate[..., 2].sum()), float(truth[..., 2].sum()))
+
+    def summary(self, duration_s: float) -> dict:
+        periods = np.diff(self.arrivals_s)
+        errors = np.array(self.errors_n) if self.errors_n else np.zeros((0, self.rows, self.cols, 3))
+        return {
+            "duration_s": duration_s,
+            "estimates": len(self.arrivals_s),
+            "rate_hz": float(1.0 / statistics.median(periods)) if len(periods) else 0.0,
+            "latency_ms_median": 1e3 * statistics.median(self.latencies_s) if self.latencies_s else None,
+            "matched_with_ground_truth": len(errors),
+            "rmse_bin_n": np.sqrt((errors**2).mean(axis=(0, 1, 2))).tolist() if len(errors) else None,
+            "rmse_total_n": np.sqrt((errors.sum(axis=(1, 2))**2).mean(axis=0)).tolist() if len(errors) else None,
+            "missing_camera_ids": sorted(self.missing_cameras),
+            "contract_violations": self.violations[:10],
+        }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds to run the graph (default 20)")
+    parser.add_argument("--scene", default="demo", help="simulator scene name or YAML file (default: demo)")
+    parser.add_argument("--sensor", default="", help="sensor description YAML (default: the installed one)")
+    parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
+    parser.add_argument("--log-dir", default="log/demo", help="where the nodes' output goes (default log/demo)")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    args = parser.parse_args(argv)
+    if args.duration <= 0:
+        parser.error("--duration must be > 0")
+
+    sensor_config = args.sensor or str(default_sensor_path())
+    sensor = load_sensor(sensor_config)
+    log_dir = Path(args.log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    specs = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model)
+    processes = [start(spec, log_dir) for spec in specs]
+    rclpy.init()
+    monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
+    started = time.monotonic()
+    next_report = started + 1.0
+    try:
+        while time.monotonic() - started < args.duration:
+            rclpy.spin_once(monitor, timeout_sec=0.05)
+            dead = [s.name for s, p in zip(specs, processes, strict=True) if p.poll() is not None]
+            if dead:
+                print(f"tactile-demo: node(s) {dead} exited; see {log_dir}/", file=sys.stderr)
+                break
+            if time.monotonic() >= next_report and not args.json:
+                next_report += 1.0
+                line = f"{time.monotonic() - started:5.1f} s  {len(monitor.arrivals_s):5d} estimates"
+                if monitor.last:
+                    line += f"  total Fz estimated {monitor.last[0]:6.3f} N, true {monitor.last[1]:6.3f} N"
+                print(line, flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stop(processes)
+        summary = monitor.summary(time.monotonic() - started)
+        monitor.destroy_node()
+        rclpy.try_shutdown()
+    print(json.dumps(summary) if args.json else json.dumps(summary, indent=2))
+    if not summary["estimates"] or summary["contract_violations"]:
+        print(f"tactile-demo: the graph produced {summary['estimates']} estimate(s), violations "
+              f"{summary['contract_violations']}; node logs in {log_dir}/", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,67 @@
+"""The sensor graph as data: which nodes run, with which parameters.
+
+One description serves `launch/sensor.launch.py` (on a ROS 2 install with `launch_ros`) and `tactile-demo`
+(which starts the same nodes as plain processes, for installs without the launch system, such as the PyPI
+wheels), so the two cannot drift apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from tactile_description import SensorDescription
+
+SOURCES = ("sim", "cameras")
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    package: str
+    executable: str
+    name: str
+    parameters: dict[str, str | int | float | bool] = field(default_factory=dict)
+
+    def ros_arguments(self) -> list[str]:
+        """Command-line arguments that give the node its name and parameters (`--ros-args ...`)."""
+        args = ["--ros-args", "-r", f"__node:={self.name}"]
+        for key, value in self.parameters.items():
+            text = str(value).lower() if isinstance(value, bool) else str(value)
+            args += ["-p", f"{key}:={text}"]
+        return args
+
+
+def camera_sources(path: str | Path, sensor: SensorDescription) -> dict[str, str]:
+    """The OpenCV source (device index, device path or video file) of every camera, from a YAML mapping."""
+    sources = yaml.safe_load(Path(path).read_text()) or {}
+    if not isinstance(sources, dict):
+        raise ValueError(f"{path}: expected a mapping camera_id -> source")
+    missing = [c for c in sensor.camera_ids if c not in sources]
+    if missing:
+        raise ValueError(f"{path}: no source for cameras {missing}; add e.g. `{missing[0]}: /dev/video0`")
+    return {c: str(sources[c]) for c in sensor.camera_ids}
+
+
+def sensor_graph(sensor: SensorDescription, sensor_config: str, source: str = "sim", scene: str = "demo",
+                 camera_sources_file: str = "", model_dir: str = "", backend: str = "onnxruntime",
+                 precision: str = "fp32") -> list[NodeSpec]:
+    """The nodes from camera images to /tactile/force_distribution for one sensor description."""
+    if source not in SOURCES:
+        raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
+    common = {"sensor_config": sensor_config}
+    if source == "sim":
+        cameras = [NodeSpec("tactile_camera_driver", "sim_camera_node", "tactile_sim_cameras",
+                            {**common, "scene": scene})]
+    else:
+        if not camera_sources_file:
+            raise ValueError("source 'cameras' needs a camera sources file (camera_id -> OpenCV source)")
+        cameras = [NodeSpec("tactile_camera_driver", "camera_node", f"tactile_camera_{camera_id}",
+                            {**common, "camera_id": camera_id, "source": device})
+                   for camera_id, device in camera_sources(camera_sources_file, sensor).items()]
+    return cameras + [
+        NodeSpec("tactile_fusion", "bundle_node", "tactile_bundle", common),
+        NodeSpec("tactile_fusion", "fusion_node", "tactile_fusion",
+                 {**common, "model_dir": model_dir, "backend": backend, "precision": precision}),
+    ]

@@ -1,0 +1,69 @@
+import ast
+from pathlib import Path
+
+import pytest
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
+
+from tactile_bringup.graph import NodeSpec, camera_sources, sensor_graph
+from tactile_description import default_sensor_path, load_sensor
+
+SHARE = Path(get_package_share_directory("tactile_bringup"))
+
+
+@pytest.fixture(scope="module")
+def sensor():
+    return load_sensor()
+
+
+def test_simulated_graph_runs_cameras_bundle_and_fusion(sensor):
+    specs = sensor_graph(sensor, str(default_sensor_path()), "sim", scene="demo", model_dir="/models/x")
+    assert [s.executable for s in specs] == ["sim_camera_node", "bundle_node", "fusion_node"]
+    assert specs[0].parameters["scene"] == "demo"
+    assert specs[2].parameters["model_dir"] == "/models/x"
+    assert all(s.parameters["sensor_config"] == str(default_sensor_path()) for s in specs)
+
+
+def test_every_executable_of_the_graph_is_installed(sensor):
+    sources_file = str(SHARE / "config" / "camera_sources.yaml")
+    for source, extra in (("sim", {}), ("cameras", {"camera_sources_file": sources_file})):
+        for spec in sensor_graph(sensor, "", source, **extra):
+            executable = Path(get_package_prefix(spec.package)) / "lib" / spec.package / spec.executable
+            assert executable.exists(), executable
+
+
+def test_real_cameras_get_one_driver_each(sensor):
+    specs = sensor_graph(sensor, "", "cameras", camera_sources_file=str(SHARE / "config" / "camera_sources.yaml"))
+    drivers = [s for s in specs if s.executable == "camera_node"]
+    assert [s.parameters["camera_id"] for s in drivers] == list(sensor.camera_ids)
+    assert len({s.name for s in specs}) == len(specs)
+
+
+def test_camera_sources_must_cover_every_camera(sensor, tmp_path):
+    partial = tmp_path / "sources.yaml"
+    partial.write_text("cam0: /dev/video0\n")
+    with pytest.raises(ValueError, match=r"no source for cameras \['cam1', 'cam2', 'cam3'\]"):
+        camera_sources(partial, sensor)
+
+
+def test_bad_source_is_rejected(sensor):
+    with pytest.raises(ValueError, match="source must be one of"):
+        sensor_graph(sensor, "", "webcam")
+    with pytest.raises(ValueError, match="needs a camera sources file"):
+        sensor_graph(sensor, "", "cameras")
+
+
+def test_parameters_become_ros_arguments():
+    spec = NodeSpec("pkg", "exe", "my_node", {"scene": "demo", "loop": True, "rate_hz": 40.0})
+    assert spec.ros_arguments() == ["--ros-args", "-r", "__node:=my_node", "-p", "scene:=demo", "-p", "loop:=true",
+                                    "-p", "rate_hz:=40.0"]
+
+
+def test_installed_launch_file_builds_the_graph_from_this_module():
+    """The launch system is not installable here (see docs/ros2-from-pypi.md): check what can be checked."""
+    source = (SHARE / "launch" / "sensor.launch.py").read_text()
+    tree = ast.parse(source)
+    functions = {node.name for node in ast.walk(tree) if isinstance(node, ast.FunctionDef)}
+    assert "generate_launch_description" in functions
+    assert "from tactile_bringup.graph import sensor_graph" in source
+    for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
+        assert (SHARE / path).exists(), path
