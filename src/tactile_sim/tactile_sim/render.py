@@ -78,6 +78,7 @@ class ParticleRenderer:
         self.n_cameras = self.rig.n_cameras
         # Capture pixels per target pixel along x and y (1 at capture resolution).
         self._box_px = 1.0 / self.rig.output_per_capture_px if resolution == "output" else np.ones(2)
+        self._area_scale = 1.0 / float(np.prod(self._box_px))   # capture pixels^2 per target pixel^2
         self.max_sigma_px = float(self._sigma_px(self._nearest_disc_radius_capture_px()))
         self.window_radius = max(1, math.ceil(self.optics.window_sigmas * self.max_sigma_px))
         r = self.window_radius
@@ -86,13 +87,18 @@ class ParticleRenderer:
         offsets = np.arange(-r, r + 1)
         self._offsets = offsets.astype(np.float32)
         self._taps = (offsets[:, None] * self._padded[1] + offsets[None, :]).ravel()   # flat window offsets
+        self._centre_limit = np.array([[self.width + r], [self.height + r]])
         self.background = self._background()
         n = len(particles)
         self.rest_spots = self.spots(np.repeat(np.arange(self.n_cameras), n), np.tile(particles.positions_m,
                                      (self.n_cameras, 1)), np.tile(np.arange(n), self.n_cameras))
-        # The rest spots' windows, kept so that a frame subtracts a moved particle's rest spot by a gather.
-        self._rest_taps, self._rest_weights = self.windows(self.rest_spots)
-        self.reference = self.background + self.crop_canvas(self._scatter(self._rest_taps, self._rest_weights))
+        # The rest spots' windows, kept (one row per spot) so that a frame subtracts a moved particle's rest spot
+        # by a gather.
+        rest_taps, rest_weights = self.windows(self.rest_spots)
+        self.reference = self.background + self.crop_canvas(self._scatter(rest_taps, rest_weights))
+        self._rest_taps = np.ascontiguousarray(rest_taps.T)
+        self._rest_weights_negated = np.ascontiguousarray(-rest_weights.T)
+        self._pair_table = self._linearisation()                                      # (C * N, 14)
         self._min_redraw_m2 = self._min_redraw_displacement_m() ** 2                  # (C, N)
         self._min_redraw_any_m2 = self._min_redraw_m2.min(axis=0)                     # (N,)
 
@@ -109,23 +115,61 @@ class ParticleRenderer:
         box = float(self._box_px.mean())
         return np.sqrt(variance + box * box / 12.0 * (box > 1.0)) / box
 
-    def spots(self, camera_index: np.ndarray, points_m: np.ndarray, particle_index: np.ndarray) -> Spots:
-        """Spots of particles (by index into the field, for diameter and reflectance) at `points_m`."""
-        o = self.optics
+    def _disc_and_radiance(self, camera_index, points_m: np.ndarray, particle_index: np.ndarray):
+        """Projection of particles at `points_m`, their disc radius (capture px) times their distance (m), and
+        their radiance (grey levels)."""
         proj = self.rig.project(camera_index, points_m)
-        diameter = self.particles.diameters_m[particle_index]
+        radius_times_distance = (self.rig.focal_px[camera_index] * proj.magnification * 0.5
+                                 * self.particles.diameters_m[particle_index])
+        radiance = (self.optics.particle_radiance * self.particles.reflectance[particle_index]
+                    * np.maximum(np.cos(proj.theta_rad), 0.0))
+        return proj, radius_times_distance, radiance
+
+    def _sigma_and_peak(self, radius_times_distance, distance_m, radiance):
+        """Spot sigma (target px) and peak grey level of a particle's disc at `distance_m` from the lens."""
         # A sphere cannot come closer to the lens than about its own size (this also keeps 1 / 0 out).
-        distance = np.maximum(proj.distance_m, diameter)
-        disc_radius = self.rig.focal_px[camera_index] * proj.magnification * 0.5 * diameter / distance
+        disc_radius = radius_times_distance / np.maximum(distance_m, self.sensor.particles.diameter_min_m)
         sigma = np.minimum(self._sigma_px(disc_radius), self.max_sigma_px)
-        cos_theta = np.maximum(np.cos(proj.theta_rad), 0.0)
-        radiance = o.particle_radiance * self.particles.reflectance[particle_index] * cos_theta
         # Light energy of the disc (radiance * pi a^2, in target pixels^2) spread over a Gaussian 2 pi sigma^2.
-        area_scale = 1.0 / float(np.prod(self._box_px))
-        peak = radiance * disc_radius ** 2 * area_scale / (2.0 * sigma ** 2)
+        peak = radiance * disc_radius ** 2 * self._area_scale / (2.0 * sigma ** 2)
+        return sigma, peak
+
+    def spots(self, camera_index: np.ndarray, points_m: np.ndarray, particle_index: np.ndarray) -> Spots:
+        """Spots of particles (by index into the field, for diameter and reflectance) at `points_m`: exact."""
+        proj, radius_times_distance, radiance = self._disc_and_radiance(camera_index, points_m, particle_index)
+        sigma, peak = self._sigma_and_peak(radius_times_distance, proj.distance_m, radiance)
         uv = proj.uv_capture_px if self.resolution == "capture" else self.rig.capture_to_output_px(
             camera_index, proj.uv_capture_px)
         return Spots(camera_index=np.asarray(camera_index), uv_px=uv, sigma_px=sigma, peak=peak)
+
+    def _linearisation(self) -> np.ndarray:
+        """(C * N, 14) float32 per rest (camera, particle) pair: the projection's Jacobian (6, target pixels per
+        metre, row-major 2 x 3), the unit ray from the lens (3), the rest spot centre (2), the distance (1), disc
+        radius times distance (1) and radiance (1): what `moved_spots` needs to move a spot to first order."""
+        n = len(self.particles)
+        cams = self.rest_spots.camera_index
+        points = np.tile(self.particles.positions_m, (self.n_cameras, 1))
+        jacobian = self.rig.jacobian_output_px_per_m(cams, points)
+        if self.resolution == "capture":
+            jacobian = jacobian / self.rig.output_per_capture_px[:, None]
+        proj, radius_times_distance, radiance = self._disc_and_radiance(cams, points, np.tile(np.arange(n),
+                                                                                              self.n_cameras))
+        ray = (points - self.rig.centres_m[cams]) / proj.distance_m[:, None]
+        return np.column_stack([jacobian.reshape(-1, 6), ray, self.rest_spots.uv_px, proj.distance_m,
+                                radius_times_distance, radiance]).astype(np.float32)
+
+    def moved_spots(self, rest_index: np.ndarray, displacements_m: np.ndarray) -> Spots:
+        """Spots of rest pairs `rest_index` (camera * N + particle) moved by `displacements_m` (P, 3), to first
+        order: centre + J d, distance + ray . d (size and brightness follow the distance). The second-order
+        error is (|d| / distance)^2 of the shift: under 0.04 px for the deepest press (tested)."""
+        t = self._pair_table[rest_index].T                                          # (14, P)
+        d = np.asarray(displacements_m, dtype=np.float32).T                         # (3, P)
+        u = t[9] + t[0] * d[0] + t[1] * d[1] + t[2] * d[2]
+        v = t[10] + t[3] * d[0] + t[4] * d[1] + t[5] * d[2]
+        distance = t[11] + t[6] * d[0] + t[7] * d[1] + t[8] * d[2]
+        sigma, peak = self._sigma_and_peak(t[12], distance, t[13])
+        uv = np.stack([u, v], axis=1)
+        return Spots(camera_index=rest_index // len(self.particles), uv_px=uv, sigma_px=sigma, peak=peak)
 
     def _background(self) -> np.ndarray:
         """(C, H, W) float32 background: the lit black top layer inside the surface, the dark frame outside."""
@@ -157,66 +201,59 @@ class ParticleRenderer:
         """(C, N) smallest displacement of each particle that can change a pixel of a camera by
         `redraw_grey_levels`: the steepest slope of a Gaussian spot is peak / (sigma sqrt(e)) per pixel, and a
         displacement d moves the spot by at most |J|_F |d| pixels (J the projection's Jacobian)."""
-        n = len(self.particles)
-        jacobian = self.rig.jacobian_output_px_per_m(self.rest_spots.camera_index,
-                                                    np.tile(self.particles.positions_m, (self.n_cameras, 1)))
-        if self.resolution == "capture":
-            jacobian = jacobian / self.rig.output_per_capture_px[:, None]
-        px_per_m = np.sqrt((jacobian ** 2).sum(axis=(1, 2)))
+        px_per_m = np.sqrt(np.square(self._pair_table[:, 0:6].astype(np.float64)).sum(axis=1))
         grey_per_px = self.rest_spots.peak / (self.rest_spots.sigma_px * math.sqrt(math.e))
         sensitivity = np.maximum(px_per_m * grey_per_px, 1e-12)
-        return (self.optics.redraw_grey_levels / sensitivity).reshape(self.n_cameras, n)
+        return (self.optics.redraw_grey_levels / sensitivity).reshape(self.n_cameras, len(self.particles))
 
     def render_displaced(self, displacements_m: np.ndarray) -> np.ndarray:
         """(C, H, W) float32 image with the particles moved by `displacements_m` (N, 3): the fast path.
 
         Starts from the reference (rest) image and redraws only the (camera, particle) pairs whose displacement
         can change a pixel by `redraw_grey_levels` (see _min_redraw_displacement_m): the rest spot is
-        subtracted and the spot at the new position, with its new size and brightness, added.
+        subtracted and the spot at the new position (moved_spots), with its new size and brightness, added.
         """
-        disp = np.asarray(displacements_m)
-        moved2 = np.einsum("ij,ij->i", disp, disp)
+        disp = np.asarray(displacements_m, dtype=np.float32)
+        moved2 = np.square(disp) @ np.ones(3, dtype=np.float32)
         candidates = np.flatnonzero(moved2 > self._min_redraw_any_m2)
         if candidates.size == 0:
             return self.reference.copy()
         redraw = moved2[candidates] > self._min_redraw_m2[:, candidates]            # (C, M)
         cams, which = np.nonzero(redraw)
         particle = candidates[which]
-        new_taps, new_weights = self.windows(
-            self.spots(cams, self.particles.positions_m[particle] + disp[particle], particle))
         rest = cams * len(self.particles) + particle
-        taps = np.concatenate([self._rest_taps[rest], new_taps])
-        weights = np.concatenate([-self._rest_weights[rest], new_weights])
-        return self.reference + self.crop_canvas(self._scatter(taps, weights))
+        new_taps, new_weights = self.windows(self.moved_spots(rest, disp[particle]))
+        canvas = np.zeros(self._canvas_size, dtype=np.float32)
+        np.add.at(canvas, self._rest_taps[rest].ravel(), self._rest_weights_negated[rest].ravel())
+        np.add.at(canvas, new_taps.ravel(), new_weights.ravel())
+        return self.reference + self.crop_canvas(canvas)
 
     # --- drawing ------------------------------------------------------------------------------------------
     def windows(self, spots: Spots) -> tuple[np.ndarray, np.ndarray]:
-        """Each spot's window in the flat padded canvas: (P, K) tap indices and (P, K) float32 weights, K = (2r+1)^2.
+        """Each spot's window in the flat padded canvas: (K, P) tap indices and (K, P) float32 weights, K = (2r+1)^2.
 
         The Gaussian is separable, so a window is the outer product of two 1-D profiles. A spot whose centre
         pixel lies more than the window radius outside the image gets zero weights (it cannot reach a visible
-        pixel by more than exp(-window_sigmas^2 / 2) of its peak).
+        pixel by more than exp(-window_sigmas^2 / 2) of its peak). The spot index runs along the last axis:
+        numpy broadcasts over a long inner axis many times faster than over a 5-long one.
         """
         r = self.window_radius
         hp, wp = self._padded
-        centre = np.rint(spots.uv_px)
-        frac = (centre - spots.uv_px).astype(np.float32)
-        col = centre[:, 0].astype(np.int64)
-        row = centre[:, 1].astype(np.int64)
-        visible = (col >= -r) & (col < self.width + r) & (row >= -r) & (row < self.height + r)
-        sigma = spots.sigma_px.astype(np.float32)
-        inv_two_var = np.float32(-0.5) / (sigma * sigma)
-        dx = frac[:, 0:1] + self._offsets
-        dy = frac[:, 1:2] + self._offsets
-        gx = np.exp(dx * dx * inv_two_var[:, None])
-        gy = np.exp(dy * dy * inv_two_var[:, None]) * (spots.peak * visible).astype(np.float32)[:, None]
-        base = np.where(visible, spots.camera_index * (hp * wp) + (row + r) * wp + (col + r), r * wp + r)
-        taps = base[:, None] + self._taps
-        weights = (gy[:, :, None] * gx[:, None, :]).reshape(len(base), -1)
-        return taps, weights
+        uv = np.ascontiguousarray(np.asarray(spots.uv_px, dtype=np.float32).T)     # (2, P): u, v
+        centre = np.rint(uv)
+        pixel = centre.astype(np.int64)
+        inside = (pixel >= -r) & (pixel < self._centre_limit)
+        visible = inside[0] & inside[1]
+        sigma = np.asarray(spots.sigma_px, dtype=np.float32)
+        offset = self._offsets[:, None, None] + (centre - uv)                       # (2r + 1, 2, P)
+        profile = np.exp(np.square(offset) * (np.float32(-0.5) / np.square(sigma)))
+        rows = profile[:, 1, :] * np.where(visible, spots.peak, 0.0).astype(np.float32)
+        weights = rows[:, None, :] * profile[None, :, 0, :]                          # (2r + 1, 2r + 1, P)
+        base = np.where(visible, spots.camera_index * (hp * wp) + pixel[1] * wp + pixel[0], 0) + (r * wp + r)
+        return self._taps[:, None] + base, weights.reshape(-1, len(base))
 
     def _scatter(self, taps: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """Flat float32 padded canvas (C * Hp * Wp) with each weight added at its tap."""
+        """Flat float32 padded canvas (C * Hp * Wp) with each weight added at its tap (arrays of equal shape)."""
         canvas = np.zeros(self._canvas_size, dtype=np.float32)
         np.add.at(canvas, taps.ravel(), weights.ravel())
         return canvas
