@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import statistics
-import subprocess
 import sys
 import time
 from collections import deque
@@ -21,33 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from ament_index_python.packages import get_package_prefix
 from rclpy.node import Node
 
-from tactile_bringup.graph import NodeSpec, sensor_graph
+from tactile_bringup.graph import sensor_graph
+from tactile_bringup.processes import start_node, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
 from tactile_msgs.msg import ForceDistribution
-
-
-def start(spec: NodeSpec, log_dir: Path) -> subprocess.Popen:
-    executable = Path(get_package_prefix(spec.package)) / "lib" / spec.package / spec.executable
-    log = open(log_dir / f"{spec.name}.log", "w")  # noqa: SIM115 - closed with the process in stop()
-    return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT)
-
-
-def stop(processes: list[subprocess.Popen]) -> None:
-    for process in processes:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-    for process in processes:
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-        if process.stdout:
-            process.stdout.close()
 
 
 class Monitor(Node):
@@ -126,9 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     sensor_config = args.sensor or str(default_sensor_path())
     sensor = load_sensor(sensor_config)
     log_dir = Path(args.log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
     specs = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model)
-    processes = [start(spec, log_dir) for spec in specs]
+    processes = [start_node(spec, log_dir) for spec in specs]
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
     started = time.monotonic()
@@ -149,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        stop(processes)
+        stop_nodes(processes)
         summary = monitor.summary(time.monotonic() - started)
         monitor.destroy_node()
         rclpy.try_shutdown()

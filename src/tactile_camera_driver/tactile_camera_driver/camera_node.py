@@ -13,12 +13,12 @@ camera and the expected size.
 from __future__ import annotations
 
 import cv2
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.node_main import run_node
 from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
 
@@ -49,6 +49,11 @@ class CameraNode(Node):
         self.next_open_s = 0.0
         self.frames_published = 0
         self.create_timer(1.0 / rate_hz, self.grab)
+
+    def destroy_node(self) -> None:
+        if self.capture is not None:
+            self.capture.release()
+        super().destroy_node()
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -92,14 +97,4 @@ class CameraNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = CameraNode()
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if node.capture is not None:
-            node.capture.release()
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(CameraNode, args)

@@ -10,13 +10,13 @@ out on `/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistributio
 from __future__ import annotations
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_description import load_sensor
 from tactile_msgs.msg import ForceDistribution
@@ -63,12 +63,4 @@ class SimCameraNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = SimCameraNode()
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(SimCameraNode, args)

@@ -8,12 +8,14 @@ camera degrades the estimate instead of stopping it.
 
 from __future__ import annotations
 
-import rclpy
+import statistics
+
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
+from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_description import load_sensor
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle
@@ -34,7 +36,7 @@ class BundleNode(Node):
             raise ValueError("tactile_bundle: max_spread_s and camera_timeout_s must be > 0, queue_size >= 1, "
                              "min_period_s >= 0")
         self.publisher = self.create_publisher(ImageBundle, "/tactile/image_bundle", 10)
-        self.last_arrival_s = {camera_id: None for camera_id in self.sensor.camera_ids}
+        self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
         self.live_cameras: tuple[str, ...] = ()
         self.sync: ApproximateTimeSync[Image] | None = None
         for camera_id in self.sensor.camera_ids:
@@ -48,7 +50,12 @@ class BundleNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_image(self, camera_id: str, msg: Image) -> None:
-        self.last_arrival_s[camera_id] = self.now_s()
+        now = self.now_s()
+        if not self.live_cameras:
+            # First image since start-up (or since every camera fell silent): give every camera one timeout to
+            # show up, so that the first bundles hold all cameras that work rather than whichever came first.
+            self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, now)
+        self.last_arrival_s[camera_id] = now
         if camera_id not in self.live_cameras:
             self.check_cameras()
         if self.sync is None or camera_id not in self.live_cameras:
@@ -59,36 +66,27 @@ class BundleNode(Node):
     def check_cameras(self) -> None:
         """Rebuild the synchroniser when the set of cameras that send images changes."""
         now = self.now_s()
-        live = tuple(c for c, t in self.last_arrival_s.items() if t is not None and now - t < self.camera_timeout_s)
+        live = tuple(c for c, t in self.last_arrival_s.items() if now - t < self.camera_timeout_s)
         if live == self.live_cameras:
             return
         lost = sorted(set(self.live_cameras) - set(live))
         if lost:
             self.get_logger().warning(f"no images from {lost} for {self.camera_timeout_s:.2f} s: bundling "
                                       f"{list(live)} only")
-        elif self.live_cameras:
-            self.get_logger().info(f"cameras {sorted(set(live) - set(self.live_cameras))} are back")
+        back = sorted(set(live) - set(self.live_cameras))
+        if back:
+            self.get_logger().info(f"cameras {back} are back")
         if self.sync is not None and self.sync.dropped.total:
             self.get_logger().info(f"synchroniser dropped {self.sync.dropped.total} image(s): {self.sync.dropped}")
         self.live_cameras = live
         self.sync = ApproximateTimeSync(live, self.queue_size, self.max_spread_s, self.min_period_s) if live else None
 
     def to_msg(self, bundle: Bundle[Image]) -> ImageBundle:
-        stamps = sorted(bundle.stamps)
-        median = stamps[len(stamps) // 2] if len(stamps) % 2 else 0.5 * (stamps[len(stamps) // 2 - 1]
-                                                                         + stamps[len(stamps) // 2])
-        return ImageBundle(header=Header(stamp=seconds_to_time(median), frame_id=self.sensor.frame_id),
+        return ImageBundle(header=Header(stamp=seconds_to_time(statistics.median(bundle.stamps)),
+                                         frame_id=self.sensor.frame_id),
                            camera_ids=list(bundle.stream_ids), images=list(bundle.items),
                            max_stamp_spread_s=bundle.spread)
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = BundleNode()
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(BundleNode, args)

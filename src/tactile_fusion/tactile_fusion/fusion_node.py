@@ -15,7 +15,6 @@ frame (the model sees "no contact" there), and the estimate lists it in `missing
 from __future__ import annotations
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -23,6 +22,7 @@ from visualization_msgs.msg import MarkerArray
 
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import ImageMessageError, msg_to_array
+from tactile_conversions.node_main import run_node
 from tactile_description import load_sensor
 from tactile_description.imaging import to_mono8
 from tactile_fusion.inference import InputError, load_predictor
@@ -124,12 +124,4 @@ class FusionNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = FusionNode()
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(FusionNode, args)

@@ -1,0 +1,34 @@
+"""Run the nodes of a graph (tactile_bringup.graph) as plain processes, where no launch system is installed."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+from pathlib import Path
+
+from ament_index_python.packages import get_package_prefix
+
+from tactile_bringup.graph import NodeSpec
+
+
+def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """Start one node; its output goes to `log_dir/<node name>.log`."""
+    executable = Path(get_package_prefix(spec.package)) / "lib" / spec.package / spec.executable
+    log_dir.mkdir(parents=True, exist_ok=True)
+    with open(log_dir / f"{spec.name}.log", "w") as log:  # the child keeps its own copy of the descriptor
+        return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT,
+                                env=env)
+
+
+def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
+    """Interrupt every node (SIGINT, as Ctrl-C), kill those that do not exit in time; their exit codes."""
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+    return [process.returncode for process in processes]
