@@ -160,8 +160,9 @@ class ParticleRenderer:
 
     def moved_spots(self, rest_index: np.ndarray, displacements_m: np.ndarray) -> Spots:
         """Spots of rest pairs `rest_index` (camera * N + particle) moved by `displacements_m` (P, 3), to first
-        order: centre + J d, distance + ray . d (size and brightness follow the distance). The second-order
-        error is (|d| / distance)^2 of the shift: under 0.04 px for the deepest press (tested)."""
+        order: centre + J d, distance + ray . d (size and brightness follow the distance). The neglected second
+        order is about |d| / distance of the shift: for the deepest press (1.5 mm) right above a camera, spots
+        shift by up to 2 output pixels and the error stays under 0.15 px, under a fifth of a spot's sigma (tested)."""
         t = self._pair_table[rest_index].T                                          # (14, P)
         d = np.asarray(displacements_m, dtype=np.float32).T                         # (3, P)
         u = t[9] + t[0] * d[0] + t[1] * d[1] + t[2] * d[2]

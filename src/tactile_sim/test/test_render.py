@@ -121,3 +121,19 @@ def test_images_are_finite_for_extreme_displacements(sim):
     displacement[50:100] = [0.05, 0.05, 0.0]                                  # thrown far outside the view
     image = sim.renderer.render_displaced(displacement)
     assert np.all(np.isfinite(image))
+
+
+def test_first_order_spot_motion_matches_exact_projection_for_the_deepest_press(sim):
+    """moved_spots moves spots with the projection's Jacobian; its error stays far below a pixel at 1.5 mm."""
+    renderer = sim.renderer
+    n = len(sim.particles)
+    for x_mm, y_mm in [(20.0, 30.0), (12.25, 12.75), (24.5, 25.5)]:  # between cameras, above one, in the centre
+        forces = sim.bin_forces([Contact(x_mm * 1e-3, y_mm * 1e-3, 1.5e-3, Sphere(0.005))])
+        displacement = sim.gel.displacements_m(forces).astype(np.float64)
+        moved = np.flatnonzero(np.abs(displacement).sum(axis=1) > 0)
+        rest = (np.arange(renderer.n_cameras)[:, None] * n + moved).ravel()
+        cams, particle = rest // n, rest % n
+        linear = renderer.moved_spots(rest, displacement[particle])
+        exact = renderer.spots(cams, sim.particles.positions_m[particle] + displacement[particle], particle)
+        assert np.hypot(*(linear.uv_px - exact.uv_px).T).max() < 0.15
+        np.testing.assert_allclose(linear.peak, exact.peak, rtol=0.05, atol=0.5)

@@ -1,0 +1,60 @@
+"""Every `tactile-sim` subcommand through a real subprocess, on small scenes."""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tactile_sim import open_dataset
+
+
+def _run(*args, check=True):
+    result = subprocess.run([sys.executable, "-m", "tactile_sim.cli", *args], capture_output=True, text=True,
+                            timeout=300)
+    if check:
+        assert result.returncode == 0, result.stderr
+    return result
+
+
+def test_press_json_reports_the_bin_forces():
+    report = json.loads(_run("press", "--x-mm", "24.5", "--y-mm", "25.5", "--depth-mm", "1.0", "--json").stdout)
+    forces = np.array(report["bin_forces_n"])
+    assert forces.shape == (report["rows"] * report["cols"], 3)
+    assert report["total_force_n"][2] == pytest.approx(forces[:, 2].sum()) and report["total_force_n"][2] > 0.5
+
+
+def test_generate_writes_a_readable_data_set(tmp_path):
+    out = tmp_path / "ds"
+    result = _run("generate", "--scene", "multi_contact", "--out", str(out), "--frames", "6")
+    assert "wrote 6 frames" in result.stdout
+    assert "frame" in result.stderr  # the tqdm progress bar
+    ds = open_dataset(out)
+    assert ds.images.shape == (6, 4, 128, 128) and ds.forces[..., 2].sum() > 1.0
+
+
+def test_render_writes_previews(tmp_path):
+    result = _run("render", "--scene", "shear", "--out", str(tmp_path), "--frames", "5", "--count", "2")
+    written = result.stdout.split()
+    assert len(written) == 3 and all(p.endswith(".png") for p in written)
+    assert (tmp_path / "rest.png").stat().st_size > 10_000
+
+
+def test_bench_prints_one_json_object_with_the_promised_figures():
+    result = _run("bench", "--json", "--frames", "20", "--runs", "1", "--effect-frames", "10")
+    report = json.loads(result.stdout)
+    assert report["frames_per_second"] > 0 and math.isfinite(report["frames_per_second"])
+    assert set(report["effect_ms"]) >= {"sensor_noise", "defocus_blur", "led_flicker", "illumination_drift",
+                                        "exposure_saturation", "camera_dropout", "reference_drift",
+                                        "camera_misalignment"}
+    assert all(math.isfinite(v) for v in report["effect_ms"].values())
+    assert set(report["ground_truth"]) == {"analytic", "numerical"}
+
+
+def test_bad_input_gets_a_clear_error_and_exit_status_2(tmp_path):
+    result = _run("generate", "--scene", "no_such_scene", "--out", str(tmp_path / "x"), check=False)
+    assert result.returncode == 2 and "installed scenes are" in result.stderr
+    result = _run("press", "--x-mm", "10", "--y-mm", "10", "--depth-mm", "9", check=False)
+    assert result.returncode == 2 and "deeper than the deepest allowed press" in result.stderr
