@@ -2,7 +2,7 @@
 
 Format (version 1), for N frames, C cameras of H x W pixels, a rows x cols bin grid:
   meta.json        format, format_version, complete, sensor_name, sensor_sha256, camera_ids, rows, cols,
-                   image_height, image_width, frame_count, frame_rate_hz, scene_name, scene_source, seed,
+                   image_height, image_width, frame_count, frame_rate_hz, scene, scene_source, seed,
                    ground_truth (model name), effects (names)
   reference.npy    (C, H, W) uint8     the rest frames (no contact, no effects)
   images.npy       (N, C, H, W) uint8  every camera of every frame, after the scene's effects
@@ -81,7 +81,7 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
         "format": FORMAT, "format_version": FORMAT_VERSION, "complete": False,
         "sensor_name": sensor.name, "sensor_sha256": sensor_sha256(sensor), "camera_ids": list(sensor.camera_ids),
         "rows": sensor.grid.rows, "cols": sensor.grid.cols, "image_height": height, "image_width": width,
-        "frame_count": n, "frame_rate_hz": sensor.frame_rate_hz, "scene_name": scene.name,
+        "frame_count": n, "frame_rate_hz": sensor.frame_rate_hz, "scene": scene.name,
         "scene_source": scene.source, "seed": scene.seed, "ground_truth": sim.ground_truth.name,
         "effects": [e.name for e in scene.effects],
     }

@@ -32,7 +32,7 @@ def test_written_data_set_reads_back_as_streamed(sim, written):
     assert isinstance(ds.images, np.memmap)
     meta = ds.meta
     assert meta["camera_ids"] == ["cam0", "cam1", "cam2", "cam3"] and meta["rows"] == 26 and meta["cols"] == 25
-    assert meta["scene_name"] == "effects" and meta["frame_count"] == 12 and meta["complete"]
+    assert meta["scene"] == "effects" and meta["frame_count"] == 12 and meta["complete"]
     assert len(ds.contacts()) == 12 and ds.contacts()[0][0]["shape"] == "Sphere"
 
 

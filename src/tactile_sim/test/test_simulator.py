@@ -2,6 +2,8 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tactile_description import load_sensor
 from tactile_sim import Simulator, load_scene
@@ -86,3 +88,22 @@ def test_the_nine_camera_skin_renders_and_streams():
 def test_unknown_ground_truth_model_is_refused():
     with pytest.raises(ValueError, match="unknown ground-truth model"):
         Simulator(load_sensor(), ground_truth="magic")
+
+
+@settings(max_examples=25, deadline=None)
+@given(x_mm=st.floats(-6.0, 55.0), y_mm=st.floats(-6.0, 57.0), depth_mm=st.floats(0.0, 1.5),
+       shear_x_mm=st.floats(-1.0, 1.0), shear_y_mm=st.floats(-1.0, 1.0), count=st.integers(1, 3))
+def test_any_allowed_press_gives_finite_forces_and_valid_images(sim, x_mm, y_mm, depth_mm, shear_x_mm, shear_y_mm,
+                                                               count):
+    contacts = [Contact((x_mm + 15 * i) * 1e-3, y_mm * 1e-3, depth_mm * 1e-3, Sphere(0.005),
+                        (shear_x_mm * 1e-3, shear_y_mm * 1e-3)) for i in range(count)]
+    forces = sim.bin_forces(contacts)
+    assert np.all(np.isfinite(forces))
+    images = sim.render(forces)
+    assert np.all(np.isfinite(images))
+    scene = parse_scene({"name": "h", "seed": 1, "timeline": [{"contacts": {"contacts": [
+        {"x_mm": c.x_m * 1e3, "y_mm": c.y_m * 1e3, "depth_mm": c.depth_m * 1e3,
+         "shear_mm": [v * 1e3 for v in c.shear_m]} for c in contacts]}}],
+        "effects": [{"type": "sensor_noise", "sigma": 3.0}, {"type": "exposure_saturation", "gain": 3.0}]})
+    frame = next(sim.stream(scene))
+    assert frame.images.dtype == np.uint8 and frame.images.max() == 255  # saturated, clipped, not wrapped
