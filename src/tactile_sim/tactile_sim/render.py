@@ -99,8 +99,9 @@ class ParticleRenderer:
         self._rest_taps = np.ascontiguousarray(rest_taps.T)
         self._rest_weights_negated = np.ascontiguousarray(-rest_weights.T)
         self._pair_table = self._linearisation()                                      # (C * N, 14)
-        self._min_redraw_m2 = self._min_redraw_displacement_m() ** 2                  # (C, N)
-        self._min_redraw_any_m2 = self._min_redraw_m2.min(axis=0)                     # (N,)
+        min_redraw_m2 = self._min_redraw_displacement_m() ** 2                        # (C, N)
+        self._min_redraw_m2 = np.ascontiguousarray(min_redraw_m2.T, dtype=np.float32)  # (N, C)
+        self._min_redraw_any_m2 = min_redraw_m2.min(axis=0).astype(np.float32)        # (N,)
 
     # --- appearance ---------------------------------------------------------------------------------------
     def _nearest_disc_radius_capture_px(self) -> float:
@@ -219,8 +220,8 @@ class ParticleRenderer:
         candidates = np.flatnonzero(moved2 > self._min_redraw_any_m2)
         if candidates.size == 0:
             return self.reference.copy()
-        redraw = moved2[candidates] > self._min_redraw_m2[:, candidates]            # (C, M)
-        cams, which = np.nonzero(redraw)
+        redraw = moved2[candidates, None] > self._min_redraw_m2[candidates]         # (M, C)
+        which, cams = np.nonzero(redraw)
         particle = candidates[which]
         rest = cams * len(self.particles) + particle
         new_taps, new_weights = self.windows(self.moved_spots(rest, disp[particle]))
@@ -251,7 +252,7 @@ class ParticleRenderer:
         rows = profile[:, 1, :] * np.where(visible, spots.peak, 0.0).astype(np.float32)
         weights = rows[:, None, :] * profile[None, :, 0, :]                          # (2r + 1, 2r + 1, P)
         base = np.where(visible, spots.camera_index * (hp * wp) + pixel[1] * wp + pixel[0], 0) + (r * wp + r)
-        return self._taps[:, None] + base, weights.reshape(-1, len(base))
+        return self._taps[:, None] + base, weights.reshape(len(self._taps), len(base))
 
     def _scatter(self, taps: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Flat float32 padded canvas (C * Hp * Wp) with each weight added at its tap (arrays of equal shape)."""
