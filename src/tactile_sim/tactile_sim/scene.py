@@ -385,8 +385,8 @@ def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None
     With `sensor`, also checks what depends on it (Scene.validate); the simulator always does before streaming.
     """
     path = Path(path_or_name)
-    if not path.exists() and path.suffix == "" and path.parent == Path("."):
-        path = scenes_directory() / f"{path_or_name}.yaml"
+    if not path.exists() and path.suffix in ("", ".yaml") and path.parent == Path("."):
+        path = scenes_directory() / f"{path.stem}.yaml"
         if not path.exists():
             known = sorted(p.stem for p in path.parent.glob("*.yaml"))
             raise SceneError(f"no scene file {path_or_name!r} and no installed scene of that name; installed scenes "

@@ -128,6 +128,10 @@ def test_flat_punch_contacts_and_explicit_frames(sensor):
     assert len(frames) == 3 and frames[0][0].shape == FlatPunch(0.002) and frames[0][1].shear_m == (0.0002, 0.0)
 
 
+def test_installed_scenes_resolve_by_name_with_or_without_the_extension():
+    assert load_scene("demo.yaml").name == load_scene("demo").name == "demo"
+
+
 def test_unknown_scene_names_list_the_installed_ones(tmp_path):
     with pytest.raises(SceneError, match="installed scenes are .*paper_grid"):
         load_scene("no_such_scene")
