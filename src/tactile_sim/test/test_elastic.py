@@ -9,7 +9,7 @@ import pytest
 
 from tactile_description import GelLayer, load_sensor
 from tactile_sim.contact import Contact, ground_truth_model, reference_press
-from tactile_sim.elastic import GelDisplacement, compliant_layer, layer_kernel
+from tactile_sim.elastic import CompliantLayer, GelDisplacement, compliant_layer, layer_kernel
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 
@@ -92,7 +92,7 @@ def test_bonded_layer_decays_much_faster_than_a_half_space(sensor):
     """A half-space moves a point 10 mm away by ~1/5 of a point 2 mm away; the bonded 4 mm layer by < 5 %."""
     layer = compliant_layer(sensor)
     r = np.array([0.0, 10e-3])
-    bonded = layer_kernel(r, 0 * r, np.full(2, 2e-3), layer, 1e-3, 1.0)[:, 2, 2]  # no cut-off
+    bonded = layer_kernel(r, 0 * r, np.full(2, 2e-3), layer, 1e-3, 0.05)[:, 2, 2]  # cut-off far beyond 10 mm
     assert abs(bonded[1]) < 0.05 * abs(bonded[0])
 
 
@@ -106,10 +106,10 @@ def test_particle_right_under_a_loaded_bin_centre_stays_finite(sensor):
     assert np.all(np.isfinite(moved))
     assert moved[1, 2] < moved[0, 2] < 0          # shallower moves more
     assert moved[2] == pytest.approx(np.zeros(3), abs=1e-12)  # on the base
-    # the bin's load acts as if spread over a disc of the bin's area: at the surface it moves less than that disc
-    # on a half-space (2 P / (pi c E*), Johnson eq. 3.42; the bonded base stiffens) but of the same order
-    disc = 2.0 * 1.0 / (math.pi * gel.core_m * gel.layer.plane_strain_modulus_pa)
-    assert 0.5 * disc < -moved[1, 2] < disc
+    # the bin's load acts spread by a Gaussian (sigma): at the surface it moves less than that Gaussian load on a
+    # half-space, int p(r) / (pi E* r) dA = P / (E* sigma sqrt(2 pi)) (the bonded base stiffens), but of that order
+    gaussian = 1.0 / (gel.layer.plane_strain_modulus_pa * gel.spread_m * math.sqrt(2 * math.pi))
+    assert 0.5 * gaussian < -moved[1, 2] < gaussian
 
 
 def test_float32_matches_float64(sensor, model):
@@ -149,3 +149,36 @@ def test_bad_inputs_are_rejected_clearly(sensor):
     forces[0, 0, 2] = math.inf
     with pytest.raises(ValueError, match="NaN or Inf"):
         gel.displacements_m(forces)
+
+
+def test_green_function_conserves_what_the_layer_must():
+    """Integrated over a plane (no cut-off): a tangential force shears the layer by (h - z) / G per newton, and a
+    nearly incompressible layer's bulge almost cancels the normal force's dent (net ~ (1 - 2 nu) / (1 - nu))."""
+    layer = compliant_layer(load_sensor(CONFIG / "sensor.yaml"))
+    spacing = 0.4e-3
+    x = np.arange(-50e-3, 50e-3, spacing)
+    xx, yy = np.meshgrid(x, x)
+    for depth in (1e-3, 2.5e-3):
+        kernel = layer_kernel(xx, yy, np.full(xx.shape, depth), layer, 0.6e-3, 0.05)
+        sheared = kernel[..., 0, 0].sum() * spacing**2
+        assert sheared == pytest.approx((layer.thickness_m - depth) / layer.shear_modulus_pa, rel=0.01)
+        assert abs(kernel[..., 1, 0].sum()) < 1e-9 * abs(kernel[..., 0, 0].sum())
+        dent = kernel[..., 2, 2]
+        assert abs(dent.sum()) < 0.1 * np.abs(dent).sum()
+
+
+def test_thick_layer_is_boussinesq_and_cerruti():
+    """Johnson (1985) eqs. 3.22 and 3.86 for a half-space, z into the solid, rho = |(x, y, z)|."""
+    layer = CompliantLayer(thickness_m=10.0, youngs_modulus_pa=150e3, poisson_ratio=0.45)
+    nu, c = layer.poisson_ratio, 1.0 / (4 * math.pi * layer.shear_modulus_pa)
+    x, y, z = np.array([1e-3, 2e-3, -3e-3]), np.array([0.5e-3, -1e-3, 2e-3]), np.array([1.5e-3, 2e-3, 3e-3])
+    rho = np.sqrt(x**2 + y**2 + z**2)
+    kernel = layer_kernel(x, y, z, layer, 0.1e-3, 5e-3)  # a 0.1 mm spread is a point force seen from >= 1.8 mm
+    boussinesq = c * np.stack([x * z / rho**3 - (1 - 2 * nu) * x / (rho * (rho + z)),
+                               y * z / rho**3 - (1 - 2 * nu) * y / (rho * (rho + z)),
+                               -(z**2 / rho**3 + 2 * (1 - nu) / rho)], axis=-1)
+    cerruti_x = c * np.stack([1 / rho + x**2 / rho**3 + (1 - 2 * nu) * (1 / (rho + z) - x**2 / (rho * (rho + z) ** 2)),
+                              x * y / rho**3 - (1 - 2 * nu) * x * y / (rho * (rho + z) ** 2),
+                              -(x * z / rho**3 + (1 - 2 * nu) * x / (rho * (rho + z)))], axis=-1)
+    np.testing.assert_allclose(kernel[..., :, 2], boussinesq, rtol=5e-3, atol=5e-3 * np.abs(boussinesq).max())
+    np.testing.assert_allclose(kernel[..., :, 0], cerruti_x, rtol=5e-3, atol=5e-3 * np.abs(cerruti_x).max())
