@@ -242,3 +242,29 @@ def test_press_report_matches_bin_forces(sensor, model):
 def test_unknown_model_name_is_rejected(sensor):
     with pytest.raises(ValueError, match="'analytic' or 'numerical'"):
         ground_truth_model(sensor, "fem")
+
+
+@pytest.mark.parametrize("model_name", ["analytic", "numerical"])
+def test_press_command_prints_the_bin_forces(sensor, capsys, model_name):
+    from tactile_sim.cli import main
+
+    argv = ["press", "--x-mm", "10.3", "--y-mm", "40.1", "--depth-mm", "1.1", "--shear-y-mm", "0.05",
+            "--model", model_name, "--sensor", str(CONFIG / "sensor.yaml"), "--json"]
+    assert main(argv) in (0, None)
+    report = json.loads(capsys.readouterr().out)
+    forces = ground_truth_model(sensor, model_name).bin_forces([press_contact(10.3, 40.1, 1.1, shear_y_mm=0.05)])
+    np.testing.assert_allclose(np.array(report["bin_forces_n"]).reshape(forces.shape), forces, rtol=1e-12)
+    np.testing.assert_allclose(report["total_force_n"], forces.sum(axis=(0, 1)), rtol=1e-12)
+    assert report["total_force_n"][1] > 0 and report["total_force_n"][2] > 1.0
+
+
+def test_benchmark_reports_every_model(sensor):
+    from tactile_sim.contact import benchmark_models
+
+    result = benchmark_models(sensor, repeats=1, numerical_repeats=1)
+    assert set(result) == {"analytic", "numerical"}
+    for entry in result.values():
+        assert entry["press_ms_median"] > 0 and entry["sheared_press_ms_median"] > 0
+        assert entry["press_total_force_n"][2] == pytest.approx(3.0, abs=0.15)
+        assert entry["sheared_press_total_force_n"][0] > 0
+    assert result["analytic"]["cost_vs_analytic"] == 1.0

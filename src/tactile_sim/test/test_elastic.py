@@ -182,3 +182,13 @@ def test_thick_layer_is_boussinesq_and_cerruti():
                               -(x * z / rho**3 + (1 - 2 * nu) * x / (rho * (rho + z)))], axis=-1)
     np.testing.assert_allclose(kernel[..., :, 2], boussinesq, rtol=5e-3, atol=5e-3 * np.abs(boussinesq).max())
     np.testing.assert_allclose(kernel[..., :, 0], cerruti_x, rtol=5e-3, atol=5e-3 * np.abs(cerruti_x).max())
+
+
+def test_displacement_benchmark_agrees_with_the_direct_sum(sensor, model):
+    from tactile_sim.elastic import benchmark_displacement
+
+    points = grid_points(sensor, 2e-3, spacing_m=2e-3)
+    result = benchmark_displacement(sensor, points, model.bin_forces([reference_press(sensor)]), repeats=3)
+    assert result["points"] == len(points) and result["loaded_bins"] > 5
+    assert result["ms_per_frame_median"] > 0 and result["speedup_vs_direct"] > 0
+    assert result["max_difference_m"] < 1e-6 * 1e-3  # float32 matrix against the float64 direct sum, 1e-6 of 1 mm
