@@ -55,6 +55,7 @@ class CameraRig:
         self._k = np.array([c.lens.distortion for c in cameras], dtype=np.float64)
         self._f = np.array([[c.lens.fx, c.lens.fy] for c in cameras])
         self._c = np.array([[c.lens.cx, c.lens.cy] for c in cameras])
+        self._one_lens = len({c.lens for c in cameras}) == 1
         #: Pixels of a mean focal length: the size of one radian near the optical axis.
         self.focal_px = self._f.mean(axis=1)
         sizes = {(c.capture_size, c.output_size, (c.crop.x, c.crop.y, c.crop.width, c.crop.height)) for c in cameras}
@@ -82,29 +83,40 @@ class CameraRig:
         c, s = self._cos[camera_index], self._sin[camera_index]
         return np.stack([c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0], d[:, 2]], axis=1)
 
+    def _lens(self, camera_index):
+        """(k1..k4 as a (4, P) or (4,) array, f, c) of the cameras; constants when all cameras share one lens."""
+        if self._one_lens:
+            return self._k[0], self._f[0], self._c[0]
+        return self._k[camera_index].reshape(-1, 4).T, self._f[camera_index], self._c[camera_index]
+
+    def _fisheye(self, camera_index, p: np.ndarray):
+        """rho, theta, theta_d and the pixel coordinates of camera-frame points `p` (P, 3)."""
+        k, f, c = self._lens(camera_index)
+        rho = np.hypot(p[:, 0], p[:, 1])
+        theta = np.arctan2(rho, p[:, 2])
+        t2 = theta * theta
+        theta_d = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+        # theta_d / rho -> 1 / Z on the axis: guard the 0 / 0 at rho = 0.
+        on_axis = rho < 1e-12
+        scale = np.where(on_axis, 1.0 / np.where(p[:, 2] == 0.0, 1.0, p[:, 2]), theta_d / np.where(on_axis, 1.0, rho))
+        return rho, theta, theta_d, p[:, :2] * scale[:, None] * f + c
+
     def project(self, camera_index, points_m: np.ndarray) -> Projection:
         """The fisheye projection of (P, 3) sensor-frame points (see the module docstring)."""
         p = self.to_camera_frame(camera_index, points_m)
-        rho = np.hypot(p[:, 0], p[:, 1])
-        distance = np.hypot(rho, p[:, 2])
-        theta = np.arctan2(rho, p[:, 2])
+        rho, theta, theta_d, uv = self._fisheye(camera_index, p)
+        k, _, _ = self._lens(camera_index)
         t2 = theta * theta
-        k = self._k[camera_index].reshape(-1, 4)
-        k1, k2, k3, k4 = k[:, 0], k[:, 1], k[:, 2], k[:, 3]
-        theta_d = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
-        radial = 1.0 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))  # d theta_d / d theta
-        # theta_d / rho -> 1 / Z on the axis and theta_d / sin(theta) -> 1: guard the 0 / 0 at rho = 0.
+        radial = 1.0 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))  # d theta_d / d theta
+        # theta_d / sin(theta) -> 1 on the axis.
         on_axis = rho < 1e-12
-        scale = np.where(on_axis, 1.0 / np.where(p[:, 2] == 0.0, 1.0, p[:, 2]), theta_d / np.where(on_axis, 1.0, rho))
-        sin_theta = np.sin(theta)
-        tangential = np.where(on_axis, 1.0, theta_d / np.where(on_axis, 1.0, sin_theta))
-        uv = p[:, :2] * scale[:, None] * self._f[camera_index] + self._c[camera_index]
-        return Projection(uv_capture_px=uv, theta_rad=theta, distance_m=distance,
+        tangential = np.where(on_axis, 1.0, theta_d / np.where(on_axis, 1.0, np.sin(theta)))
+        return Projection(uv_capture_px=uv, theta_rad=theta, distance_m=np.hypot(rho, p[:, 2]),
                           magnification=np.sqrt(np.abs(radial * tangential)))
 
     def project_capture_px(self, camera_index, points_m: np.ndarray) -> np.ndarray:
         """(P, 3) sensor-frame points -> (P, 2) capture pixel coordinates (u right, v down)."""
-        return self.project(camera_index, points_m).uv_capture_px
+        return self._fisheye(camera_index, self.to_camera_frame(camera_index, points_m))[3]
 
     def capture_to_output_px(self, camera_index, uv_capture: np.ndarray) -> np.ndarray:
         """Capture pixel coordinates -> model-image (cropped, downsampled) pixel coordinates."""

@@ -13,6 +13,9 @@ import numpy as np
 
 from tactile_description import SensorDescription
 
+#: Cell size of the storage order (see generate_particles): about the reach of one loaded bin's neighbourhood.
+_CELL_M = 2e-3
+
 
 @dataclass(frozen=True)
 class ParticleField:
@@ -36,7 +39,9 @@ def generate_particles(sensor: SensorDescription) -> ParticleField:
 
     The count is the description's density times the layer volume (rounded), not a Poisson draw, so that it
     is a plain function of the description. Sphere centres keep one maximum radius away from the layer's
-    top and bottom faces (a sphere does not stick out of the layer it was cast in).
+    top and bottom faces (a sphere does not stick out of the layer it was cast in). Particles are stored in
+    raster order of 2 mm cells of the surface, so that the particles one press moves sit close together in
+    memory (the per-frame gathers then hit the cache).
     """
     spec = sensor.particles
     top, bottom = sensor.layer_depth_range_m(spec.layer)
@@ -52,4 +57,6 @@ def generate_particles(sensor: SensorDescription) -> ParticleField:
     positions[:, 2] = -rng.uniform(top + margin, bottom - margin, count)
     diameters = rng.uniform(spec.diameter_min_m, spec.diameter_max_m, count)
     reflectance = rng.uniform(0.75, 1.0, count)
-    return ParticleField(positions_m=positions, diameters_m=diameters, reflectance=reflectance)
+    cells = np.floor(positions[:, :2] / _CELL_M).astype(np.int64)
+    order = np.lexsort((cells[:, 0], cells[:, 1]))
+    return ParticleField(positions_m=positions[order], diameters_m=diameters[order], reflectance=reflectance[order])

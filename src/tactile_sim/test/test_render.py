@@ -55,12 +55,14 @@ def test_pressed_frames_match_capture_rendering_through_the_driver(sim, capture_
     assert np.sum((change_fast - change_slow) ** 2) < DIFFERENCE_ENERGY_ERROR * np.sum(change_slow ** 2)
 
 
-def test_redrawing_only_moved_particles_matches_drawing_all(sim):
-    """The shortcut skips particles that cannot change a pixel by `redraw_grey_levels`; check the sum stays small."""
-    forces = sim.bin_forces([Contact(0.03, 0.02, 1.2e-3, Sphere(0.005))])
+@pytest.mark.parametrize("x_mm, y_mm", [(30.0, 20.0), (12.25, 12.75)])  # between cameras, right above one
+def test_redrawing_only_moved_particles_matches_drawing_all(sim, x_mm, y_mm):
+    """The fast path skips particles that cannot change a pixel by `redraw_grey_levels` and moves spots mostly
+    to first order; against drawing every particle exactly, it stays within a few grey levels."""
+    forces = sim.bin_forces([Contact(x_mm * 1e-3, y_mm * 1e-3, 1.5e-3, Sphere(0.005))])
     shortcut = sim.render(forces)
     full = sim.renderer.render(sim.particle_positions_m(forces))
-    assert np.abs(shortcut - full).max() < 2.0
+    assert np.abs(shortcut - full).max() < 2.5
     assert np.abs(shortcut - full).mean() < 0.01
 
 
@@ -123,8 +125,8 @@ def test_images_are_finite_for_extreme_displacements(sim):
     assert np.all(np.isfinite(image))
 
 
-def test_first_order_spot_motion_matches_exact_projection_for_the_deepest_press(sim):
-    """moved_spots moves spots with the projection's Jacobian; its error stays far below a pixel at 1.5 mm."""
+def test_moved_spots_match_exact_projection_for_the_deepest_press(sim):
+    """moved_spots moves spots to first order (exactly for large motions): far below a pixel off at 1.5 mm."""
     renderer = sim.renderer
     n = len(sim.particles)
     for x_mm, y_mm in [(20.0, 30.0), (12.25, 12.75), (24.5, 25.5)]:  # between cameras, above one, in the centre
@@ -135,5 +137,6 @@ def test_first_order_spot_motion_matches_exact_projection_for_the_deepest_press(
         cams, particle = rest // n, rest % n
         linear = renderer.moved_spots(rest, displacement[particle])
         exact = renderer.spots(cams, sim.particles.positions_m[particle] + displacement[particle], particle)
-        assert np.hypot(*(linear.uv_px - exact.uv_px).T).max() < 0.15
+        assert np.hypot(*(linear.uv_px - exact.uv_px).T).max() < 0.05
         np.testing.assert_allclose(linear.peak, exact.peak, rtol=0.05, atol=0.5)
+        np.testing.assert_allclose(linear.sigma_px, exact.sigma_px, rtol=0.02)
