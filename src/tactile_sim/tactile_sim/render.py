@@ -21,7 +21,7 @@ with the area-averaging box of INTER_AREA (width w = crop / output capture pixel
 w^2 / 12. The fast path's background is the capture background downsampled by INTER_AREA itself. The test
 suite checks that the two paths agree.
 
-Spots are drawn with one np.bincount over all cameras into a padded canvas (no Python loop over particles).
+Spots are drawn with np.add.at over all cameras into one padded canvas (no Python loop over particles).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ class Optics:
     background_radiance: float = 30.0       # the black top layer, on the optical axis
     frame_level: float = 6.0                # the sensor's frame, seen beyond the edges of the surface
     psf_sigma_capture_px: float = 0.75      # lens blur, capture pixels
-    window_sigmas: float = 3.0              # a spot is drawn out to this many sigma (window of the bincount)
+    window_sigmas: float = 3.0              # a spot is drawn out to this many sigma (its window in the canvas)
     redraw_grey_levels: float = 0.5         # a moved particle is redrawn when it could change a pixel by more
     exact_motion_fraction: float = 0.03     # motions beyond this fraction of the distance to the lens: exact
 
