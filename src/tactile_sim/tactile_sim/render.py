@@ -76,6 +76,9 @@ class ParticleRenderer:
         self.particles = particles
         self.resolution = resolution
         self.optics = optics or Optics()
+        if not self.optics.psf_sigma_capture_px > 0:
+            raise ValueError(f"Optics.psf_sigma_capture_px must be > 0 (a lens always blurs; a zero-width spot has "
+                             f"no Gaussian), got {self.optics.psf_sigma_capture_px}")
         self.rig = CameraRig(sensor.cameras)
         size = self.rig.output_size if resolution == "output" else self.rig.capture_size
         self.width, self.height = size
