@@ -7,7 +7,7 @@ import pytest
 from tactile_description import load_sensor
 from tactile_description.imaging import crop_and_downsample
 from tactile_sim.contact import Contact, Sphere
-from tactile_sim.render import ParticleRenderer, Spots
+from tactile_sim.render import Optics, ParticleRenderer, Spots
 from tactile_sim.simulator import Simulator, quantize
 
 #: Documented agreement of the fast path with capture rendering + crop_and_downsample (uint8 images): the mean
@@ -140,3 +140,10 @@ def test_moved_spots_match_exact_projection_for_the_deepest_press(sim):
         assert np.hypot(*(linear.uv_px - exact.uv_px).T).max() < 0.05
         np.testing.assert_allclose(linear.peak, exact.peak, rtol=0.05, atol=0.5)
         np.testing.assert_allclose(linear.sigma_px, exact.sigma_px, rtol=0.02)
+
+
+def test_bad_renderer_settings_are_refused(sim):
+    with pytest.raises(ValueError, match="resolution must be one of"):
+        ParticleRenderer(sim.sensor, sim.particles, "preview")
+    with pytest.raises(ValueError, match="psf_sigma_capture_px must be > 0"):
+        ParticleRenderer(sim.sensor, sim.particles, "output", Optics(psf_sigma_capture_px=0.0))
