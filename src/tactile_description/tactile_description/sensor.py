@@ -48,6 +48,11 @@ class BinGrid:
     def n_bins(self) -> int:
         return self.rows * self.cols
 
+    @property
+    def centre_m(self) -> tuple[float, float]:
+        """(x, y) of the middle of the surface."""
+        return 0.5 * self.width_m, 0.5 * self.length_m
+
     def bin_centers_m(self) -> np.ndarray:
         """(rows, cols, 2) array of bin centre (x, y) in metres."""
         x = (np.arange(self.cols) + 0.5) * self.bin_width_m

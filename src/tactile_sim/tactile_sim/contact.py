@@ -374,7 +374,7 @@ def press_report(sensor: SensorDescription, contact: Contact, model: GroundTruth
 
 def reference_press(sensor: SensorDescription) -> Contact:
     """The paper's calibration press: the 10 mm sphere 1.5 mm deep at the centre of the surface."""
-    return Contact(0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m, 1.5e-3, Sphere(0.005))
+    return Contact(*sensor.grid.centre_m, 1.5e-3, Sphere(0.005))
 
 
 def benchmark_models(sensor: SensorDescription, repeats: int = 21, numerical_repeats: int = 5) -> dict:

@@ -5,14 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tactile_description import load_sensor
 from tactile_description.imaging import crop_and_downsample
 from tactile_sim.camera import CameraRig
-
-
-@pytest.fixture(scope="module")
-def sensor():
-    return load_sensor()
 
 
 def _distorted_rig(sensor):

@@ -1,6 +1,5 @@
 """The analytic ground-truth model: calibration, textbook limits, shapes, shear and the hard cases."""
 
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -8,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_description import GelLayer, load_sensor
+from tactile_description import load_sensor
 from tactile_sim.contact import (
     Contact,
     FlatPunch,
@@ -27,26 +26,6 @@ from tactile_sim.elastic import compliant_layer
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 
 
-@pytest.fixture(scope="module")
-def sensor():
-    return load_sensor(CONFIG / "sensor.yaml")
-
-
-@pytest.fixture(scope="module")
-def model(sensor):
-    return ground_truth_model(sensor)
-
-
-def with_single_layer(sensor, thickness_m, youngs_modulus_pa=150e3, poisson_ratio=0.49):
-    layer = GelLayer("gel", thickness_m, youngs_modulus_pa, poisson_ratio)
-    return dataclasses.replace(sensor, gel_layers=(layer,), particles=dataclasses.replace(sensor.particles,
-                                                                                          layer="gel"))
-
-
-def centre(sensor):
-    return 0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m
-
-
 @pytest.mark.parametrize("name", ["sensor.yaml", "skin_3x3.yaml"])
 def test_reference_press_gives_about_3_newtons(name):
     sensor = load_sensor(CONFIG / name)
@@ -55,28 +34,28 @@ def test_reference_press_gives_about_3_newtons(name):
     assert forces.shape == (sensor.grid.rows, sensor.grid.cols, 3)
 
 
-def test_half_space_limit_is_hertz(sensor):
+def test_half_space_limit_is_hertz(sensor, single_layer):
     """Thickness -> infinity: F = (4/3) E* sqrt(R) d^1.5 and a = sqrt(R d) (Johnson eq. 4.23) within 2 %."""
-    thick = with_single_layer(sensor, 100.0, youngs_modulus_pa=400e3, poisson_ratio=0.45)
+    thick = single_layer(sensor, 100.0, youngs_modulus_pa=400e3, poisson_ratio=0.45)
     e_star = 400e3 / (1 - 0.45**2)
     radius, depth = 0.005, 1.0e-3
-    forces = ground_truth_model(thick).bin_forces([Contact(*centre(thick), depth, Sphere(radius))])
+    forces = ground_truth_model(thick).bin_forces([Contact(*thick.grid.centre_m, depth, Sphere(radius))])
     hertz = 4.0 / 3.0 * e_star * math.sqrt(radius) * depth**1.5
     assert forces[..., 2].sum() == pytest.approx(hertz, rel=0.02)
     # contact radius: the force-weighted r^2 of Hertz pressure is 2 a^2 / 5; the bins' own r^2 adds the bin
     # area's second moment (w^2 / 6) - the binned distribution keeps the contact size
-    centres = thick.grid.bin_centers_m() - np.array(centre(thick))
+    centres = thick.grid.bin_centers_m() - np.array(thick.grid.centre_m)
     r2 = (forces[..., 2] * (centres**2).sum(axis=-1)).sum() / forces[..., 2].sum()
     contact_radius = math.sqrt(max(r2 - thick.grid.bin_width_m**2 / 6.0, 0.0) * 5.0 / 2.0)
     assert contact_radius == pytest.approx(math.sqrt(radius * depth), rel=0.05)
 
 
-def test_thin_layer_is_stiffer_by_the_dimitriadis_factor(sensor):
+def test_thin_layer_is_stiffer_by_the_dimitriadis_factor(sensor, single_layer):
     radius, depth = 0.005, 1.0e-3
     forces = {}
     for h in (100.0, 8e-3, 4e-3, 3e-3):
-        layered = with_single_layer(sensor, h)
-        forces[h] = ground_truth_model(layered).bin_forces([Contact(*centre(sensor), depth)])[..., 2].sum()
+        layered = single_layer(sensor, h)
+        forces[h] = ground_truth_model(layered).bin_forces([Contact(*sensor.grid.centre_m, depth)])[..., 2].sum()
     for h in (8e-3, 4e-3, 3e-3):
         chi = math.sqrt(radius * depth) / h
         assert forces[h] / forces[100.0] == pytest.approx(1 + 1.133 * chi + 1.283 * chi**2 + 0.769 * chi**3
@@ -100,7 +79,7 @@ def test_zero_depth_gives_exactly_zero(model):
 
 @pytest.mark.parametrize("shape", [Sphere(), FlatPunch(0.002)])
 def test_vanishing_depth_is_finite_and_tiny(sensor, model, shape):
-    contact = Contact(*centre(sensor), 1e-15, shape, shear_m=(1e-3, 0.0))  # 1e-12 mm
+    contact = Contact(*sensor.grid.centre_m, 1e-15, shape, shear_m=(1e-3, 0.0))  # 1e-12 mm
     forces = model.bin_forces([contact])
     assert np.all(np.isfinite(forces))
     assert 0.0 < forces[..., 2].sum() < 1e-9
@@ -141,17 +120,17 @@ def test_overlapping_contacts_superpose(model):
 def test_deepest_press_is_allowed_and_deeper_raises(sensor, model):
     limit = max_depth_m(sensor, Sphere())
     assert limit == pytest.approx(0.5 * compliant_layer(sensor).thickness_m)
-    forces = model.bin_forces([Contact(*centre(sensor), limit)])
+    forces = model.bin_forces([Contact(*sensor.grid.centre_m, limit)])
     assert np.all(np.isfinite(forces)) and forces[..., 2].sum() > 3.0
     with pytest.raises(ValueError, match="deeper than the deepest allowed press"):
-        model.bin_forces([Contact(*centre(sensor), limit * 1.001)])
+        model.bin_forces([Contact(*sensor.grid.centre_m, limit * 1.001)])
     assert max_depth_m(sensor, Sphere(0.001)) == 0.001
     assert max_depth_m(sensor, HeightMap(np.array([[0.0, 3e-4]]), 1e-4)) == 3e-4
 
 
-def test_shear_gives_mindlin_partial_slip_along_the_shear(sensor):
+def test_shear_gives_mindlin_partial_slip_along_the_shear(sensor, single_layer):
     """Half-space Hertz + Mindlin (Johnson eq. 7.42): Q = mu P [1 - (1 - delta / delta_slip)^(3/2)]."""
-    thick = with_single_layer(sensor, 100.0, poisson_ratio=0.45)
+    thick = single_layer(sensor, 100.0, poisson_ratio=0.45)
     model = ground_truth_model(thick)
     layer = compliant_layer(thick)
     radius, depth, mu = 0.005, 1e-3, 0.6
@@ -172,7 +151,7 @@ def test_shear_gives_mindlin_partial_slip_along_the_shear(sensor):
 
 def test_partial_slip_traction_peaks_at_the_slip_annulus(sensor, model):
     """Mindlin's traction is mu p outside the stick zone and lower inside: small shear loads the rim first."""
-    x, y = centre(sensor)
+    x, y = sensor.grid.centre_m
     forces = model.bin_forces([Contact(x, y, 1.5e-3, shear_m=(2e-5, 0.0))])
     ratio = forces[..., 0] / np.where(forces[..., 2] > 0, forces[..., 2], np.inf)
     row, col = int(y / sensor.grid.bin_length_m), int(x / sensor.grid.bin_width_m)
@@ -180,8 +159,8 @@ def test_partial_slip_traction_peaks_at_the_slip_annulus(sensor, model):
     assert ratio[row, col + 2] == 0  # outside the contact (radius 2.7 mm)
 
 
-def test_flat_punch_matches_sneddon_in_the_half_space(sensor):
-    thick = with_single_layer(sensor, 100.0, youngs_modulus_pa=300e3, poisson_ratio=0.4)
+def test_flat_punch_matches_sneddon_in_the_half_space(sensor, single_layer):
+    thick = single_layer(sensor, 100.0, youngs_modulus_pa=300e3, poisson_ratio=0.4)
     forces = ground_truth_model(thick).bin_forces([Contact(0.02, 0.02, 2e-4, FlatPunch(0.003))])
     assert forces[..., 2].sum() == pytest.approx(2 * 300e3 / (1 - 0.4**2) * 0.003 * 2e-4, rel=1e-3)
     # the edge-singular pressure loads bins at the rim more than at the centre (bin areas are equal)

@@ -1,24 +1,18 @@
 """The numerical ground-truth model: influence coefficients, the constrained solver, and its agreement with
 the textbook solutions and with the analytic model."""
 
-import dataclasses
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tactile_description import GelLayer, load_sensor
+from tactile_description import load_sensor
 from tactile_sim.contact import Contact, FlatPunch, HeightMap, Sphere, ground_truth_model, reference_press
 from tactile_sim.contact_solver import NumericalContactModel, layer_compliance_factor, surface_influence
 from tactile_sim.elastic import CompliantLayer, compliant_layer
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
-
-
-@pytest.fixture(scope="module")
-def sensor():
-    return load_sensor(CONFIG / "sensor.yaml")
 
 
 @pytest.fixture(scope="module")
@@ -29,16 +23,6 @@ def model(sensor):
 @pytest.fixture(scope="module")
 def analytic(sensor):
     return ground_truth_model(sensor, "analytic")
-
-
-def with_single_layer(sensor, thickness_m, youngs_modulus_pa=150e3, poisson_ratio=0.49):
-    layer = GelLayer("gel", thickness_m, youngs_modulus_pa, poisson_ratio)
-    return dataclasses.replace(sensor, gel_layers=(layer,), particles=dataclasses.replace(sensor.particles,
-                                                                                          layer="gel"))
-
-
-def centre(sensor):
-    return 0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m
 
 
 def test_layer_compliance_limits():
@@ -69,17 +53,17 @@ def test_influence_coefficients_half_space_and_layer():
     assert abs(layer_kernel[0, 200]) < 1e-3 * layer_kernel[0, 0]   # and kills the far field (50 mm = 12.5 h)
 
 
-def test_half_space_limit_is_hertz(sensor):
+def test_half_space_limit_is_hertz(sensor, single_layer):
     """Small depth (the sphere is then a paraboloid): F and a of Hertz within 2 %."""
-    thick = with_single_layer(sensor, 100.0, youngs_modulus_pa=400e3, poisson_ratio=0.45)
+    thick = single_layer(sensor, 100.0, youngs_modulus_pa=400e3, poisson_ratio=0.45)
     e_star = 400e3 / (1 - 0.45**2)
     radius, depth = 0.005, 0.4e-3
     model = NumericalContactModel(thick, pixels_per_bin=12)
-    forces, (rows, cols) = model.pixel_forces([Contact(*centre(thick), depth, Sphere(radius))])
+    forces, (rows, cols) = model.pixel_forces([Contact(*thick.grid.centre_m, depth, Sphere(radius))])
     fz = forces[..., 2]
     assert fz.sum() == pytest.approx(4.0 / 3.0 * e_star * math.sqrt(radius) * depth**1.5, rel=0.02)
-    y = (np.arange(rows.start, rows.stop) + 0.5) * model.pixel_y_m - centre(thick)[1]
-    x = (np.arange(cols.start, cols.stop) + 0.5) * model.pixel_x_m - centre(thick)[0]
+    y = (np.arange(rows.start, rows.stop) + 0.5) * model.pixel_y_m - thick.grid.centre_m[1]
+    x = (np.arange(cols.start, cols.stop) + 0.5) * model.pixel_x_m - thick.grid.centre_m[0]
     r2 = x[None, :] ** 2 + y[:, None] ** 2
     contact_radius = math.sqrt(2.5 * (fz * r2).sum() / fz.sum())  # Hertz: <r^2> = 2 a^2 / 5
     assert contact_radius == pytest.approx(math.sqrt(radius * depth), rel=0.02)
@@ -96,7 +80,7 @@ def test_reference_press_agrees_with_the_analytic_model(sensor, model, analytic)
 
 @pytest.mark.parametrize("radius_m", [1e-3, 2e-3, 4e-3])
 def test_flat_punch_agrees_with_the_analytic_model(sensor, model, analytic, radius_m):
-    contact = Contact(*centre(sensor), 0.2e-3, FlatPunch(radius_m))
+    contact = Contact(*sensor.grid.centre_m, 0.2e-3, FlatPunch(radius_m))
     assert model.bin_forces([contact])[..., 2].sum() == pytest.approx(
         analytic.bin_forces([contact])[..., 2].sum(), rel=0.1)
 
@@ -106,8 +90,8 @@ def test_height_map_of_a_sphere_matches_the_sphere(sensor, model):
     offsets = (np.arange(n) - (n - 1) / 2) * pixel
     x, y = np.meshgrid(offsets, offsets)
     heights = radius - np.sqrt(radius**2 - x**2 - y**2)
-    as_map = model.bin_forces([Contact(*centre(sensor), 1e-3, HeightMap(heights - heights.min(), pixel))])
-    as_sphere = model.bin_forces([Contact(*centre(sensor), 1e-3, Sphere(radius))])
+    as_map = model.bin_forces([Contact(*sensor.grid.centre_m, 1e-3, HeightMap(heights - heights.min(), pixel))])
+    as_sphere = model.bin_forces([Contact(*sensor.grid.centre_m, 1e-3, Sphere(radius))])
     assert as_map[..., 2].sum() == pytest.approx(as_sphere[..., 2].sum(), rel=0.005)
     np.testing.assert_allclose(as_map, as_sphere, atol=0.01 * as_sphere.max())
 
@@ -117,14 +101,14 @@ def test_an_asymmetric_height_map_loads_its_low_side(sensor, model):
     pixel = 0.1e-3
     x = (np.arange(81) - 40) * pixel
     heights = np.tile(0.1 * (x - x.min()), (81, 1))
-    forces = model.bin_forces([Contact(*centre(sensor), 0.3e-3, HeightMap(heights, pixel))])
+    forces = model.bin_forces([Contact(*sensor.grid.centre_m, 0.3e-3, HeightMap(heights, pixel))])
     cols = np.arange(sensor.grid.cols)
     fz = forces[..., 2].sum(axis=0)
-    assert fz.sum() > 0 and (cols * fz).sum() / fz.sum() < centre(sensor)[0] / sensor.grid.bin_width_m - 0.5
+    assert fz.sum() > 0 and (cols * fz).sum() / fz.sum() < sensor.grid.centre_m[0] / sensor.grid.bin_width_m - 0.5
 
 
 def test_overlapping_indenters_are_a_union_not_a_sum(sensor, model):
-    x, y = centre(sensor)
+    x, y = sensor.grid.centre_m
     one = model.bin_forces([Contact(x, y, 1e-3)])
     np.testing.assert_allclose(model.bin_forces([Contact(x, y, 1e-3), Contact(x, y, 1e-3)]), one)
     near = model.bin_forces([Contact(x, y, 1e-3), Contact(x + 3e-3, y, 1e-3)])
@@ -134,7 +118,7 @@ def test_overlapping_indenters_are_a_union_not_a_sum(sensor, model):
 
 
 def test_shear_gives_partial_slip_along_the_shear(sensor, model, analytic):
-    x, y = centre(sensor)
+    x, y = sensor.grid.centre_m
     direction = np.array([0.6, -0.8])
     previous = 0.0
     for shear in (1e-5, 1e-4, 3e-4, 1e-3, 5e-3):
@@ -152,7 +136,7 @@ def test_shear_gives_partial_slip_along_the_shear(sensor, model, analytic):
 
 
 def test_hard_cases_stay_finite(sensor, model):
-    x, y = centre(sensor)
+    x, y = sensor.grid.centre_m
     assert not model.bin_forces([Contact(x, y, 0.0), Contact(0.01, 0.01, 0.0, FlatPunch(1e-3))]).any()
     assert not model.bin_forces([]).any()
     tiny = model.bin_forces([Contact(x, y, 1e-15)])

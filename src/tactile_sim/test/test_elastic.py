@@ -8,20 +8,10 @@ import numpy as np
 import pytest
 
 from tactile_description import GelLayer, load_sensor
-from tactile_sim.contact import Contact, ground_truth_model, reference_press
+from tactile_sim.contact import Contact, reference_press
 from tactile_sim.elastic import CompliantLayer, GelDisplacement, compliant_layer, layer_kernel
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
-
-
-@pytest.fixture(scope="module")
-def sensor():
-    return load_sensor(CONFIG / "sensor.yaml")
-
-
-@pytest.fixture(scope="module")
-def model(sensor):
-    return ground_truth_model(sensor)
 
 
 def grid_points(sensor, depth_m, spacing_m=1e-3):
@@ -52,7 +42,7 @@ def test_a_soft_base_is_part_of_the_compliant_layer(sensor):
 def test_pressing_moves_particles_down_most_under_the_contact(sensor, model):
     points = grid_points(sensor, 2e-3)
     moved = GelDisplacement(sensor, points).displacements_m(model.bin_forces([reference_press(sensor)]))
-    x0, y0 = 0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m
+    x0, y0 = sensor.grid.centre_m
     r = np.hypot(points[:, 0] - x0, points[:, 1] - y0)
     assert moved.shape == points.shape and np.all(np.isfinite(moved))
     below = r < 1.5e-3
@@ -66,7 +56,7 @@ def test_pressing_moves_particles_down_most_under_the_contact(sensor, model):
 
 def test_shear_moves_particles_along_the_shear(sensor, model):
     points = grid_points(sensor, 1.5e-3)
-    x0, y0 = 0.5 * sensor.grid.width_m, 0.5 * sensor.grid.length_m
+    x0, y0 = sensor.grid.centre_m
     gel = GelDisplacement(sensor, points)
     pressed = gel.displacements_m(model.bin_forces([Contact(x0, y0, 1.2e-3)]))
     sheared = gel.displacements_m(model.bin_forces([Contact(x0, y0, 1.2e-3, shear_m=(0.0, 3e-4))]))

@@ -3,13 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tactile_description import load_sensor
 from tactile_sim.particles import generate_particles, particle_layer_volume_m3
-
-
-@pytest.fixture(scope="module")
-def sensor():
-    return load_sensor()
 
 
 def test_particles_fill_the_particle_layer_at_the_described_density(sensor):

@@ -13,11 +13,6 @@ SHIPPED = ["paper_grid", "edge_corner", "multi_contact", "shear", "effects", "de
 
 
 @pytest.fixture(scope="module")
-def sensor():
-    return load_sensor()
-
-
-@pytest.fixture(scope="module")
 def skin():
     return load_sensor(scenes_directory().parent / "skin_3x3.yaml")
 
