@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from tactile_description.yaml_fields import YamlFields
+
 MM = 1e-3
 KPA = 1e3
 UM = 1e-6
@@ -190,123 +192,72 @@ def load_sensor(path: str | os.PathLike | None = None) -> SensorDescription:
     return _parse(raw, str(path))
 
 
-class _Reader:
-    """Pulls typed, range-checked values out of nested YAML and names the key path in every error."""
-
-    def __init__(self, source: str):
-        self.source = source
-
-    def get(self, node: dict, key: str, where: str):
-        if not isinstance(node, dict) or key not in node:
-            raise SensorConfigError(f"{self.source}: missing key {where}.{key}")
-        return node[key]
-
-    def number(self, node: dict, key: str, where: str, low: float = -math.inf, positive: bool = False) -> float:
-        value = self.get(node, key, where)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise SensorConfigError(f"{self.source}: {where}.{key} must be a finite number, got {value!r}")
-        if positive and value <= 0:
-            raise SensorConfigError(f"{self.source}: {where}.{key} must be > 0, got {value}")
-        if value < low:
-            raise SensorConfigError(f"{self.source}: {where}.{key} must be >= {low}, got {value}")
-        return float(value)
-
-    def count(self, node: dict, key: str, where: str, low: int = 1) -> int:
-        value = self.get(node, key, where)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise SensorConfigError(f"{self.source}: {where}.{key} must be an integer >= {low}, got {value!r}")
-        return value
+def _fields(node, where: str) -> YamlFields:
+    return YamlFields(node, where, SensorConfigError)
 
 
 def _parse(raw: dict, source: str) -> SensorDescription:
-    r = _Reader(source)
-    surface = r.get(raw, "surface", "")
-    grid = BinGrid(
-        rows=r.count(surface, "bin_rows", "surface"),
-        cols=r.count(surface, "bin_cols", "surface"),
-        width_m=r.number(surface, "width_mm", "surface", positive=True) * MM,
-        length_m=r.number(surface, "length_mm", "surface", positive=True) * MM,
-    )
-    layers = []
-    for i, node in enumerate(r.get(raw, "gel_layers", "") or []):
-        where = f"gel_layers[{i}]"
-        nu = r.number(node, "poisson_ratio", where, low=0.0)
-        if nu >= 0.5:
-            raise SensorConfigError(f"{source}: {where}.poisson_ratio must be < 0.5 (0.5 is incompressible and "
-                                    f"makes the elastic kernels singular), got {nu}")
-        layers.append(GelLayer(
-            name=str(r.get(node, "name", where)),
-            thickness_m=r.number(node, "thickness_mm", where, positive=True) * MM,
-            youngs_modulus_pa=r.number(node, "youngs_modulus_kpa", where, positive=True) * KPA,
-            poisson_ratio=nu,
-        ))
-    if not layers:
+    top = _fields(raw, source)
+    surface = top.child("surface")
+    grid = BinGrid(rows=surface.count("bin_rows"), cols=surface.count("bin_cols"),
+                   width_m=surface.number("width_mm", positive=True) * MM,
+                   length_m=surface.number("length_mm", positive=True) * MM)
+    surface.finish()
+
+    layer_nodes = top.raw("gel_layers", required=True)
+    if not isinstance(layer_nodes, list) or not layer_nodes:
         raise SensorConfigError(f"{source}: gel_layers must list at least one layer")
+    layers = []
+    for i, node in enumerate(layer_nodes):
+        f = _fields(node, f"{source}.gel_layers[{i}]")
+        layers.append(GelLayer(name=str(f.raw("name", required=True)),
+                               thickness_m=f.number("thickness_mm", positive=True) * MM,
+                               youngs_modulus_pa=f.number("youngs_modulus_kpa", positive=True) * KPA,
+                               # below 0.5: an incompressible layer makes the elastic kernels singular
+                               poisson_ratio=f.number("poisson_ratio", low=0.0, high=0.4999)))
+        f.finish()
 
-    p = r.get(raw, "particles", "")
-    diameters = r.get(p, "diameter_um", "particles")
-    if not (isinstance(diameters, list) and len(diameters) == 2 and 0 < diameters[0] <= diameters[1]):
-        raise SensorConfigError(f"{source}: particles.diameter_um must be [min, max] with 0 < min <= max")
-    particles = ParticleSpec(
-        layer=str(r.get(p, "layer", "particles")),
-        diameter_min_m=float(diameters[0]) * UM,
-        diameter_max_m=float(diameters[1]) * UM,
-        per_m3=r.number(p, "per_mm3", "particles", positive=True) / MM**3,
-        seed=r.count(p, "seed", "particles", low=0),
-    )
+    p = top.child("particles")
+    diameter_min_um, diameter_max_um = p.span("diameter_um", low=1e-9)
+    particles = ParticleSpec(layer=str(p.raw("layer", required=True)), diameter_min_m=diameter_min_um * UM,
+                             diameter_max_m=diameter_max_um * UM, per_m3=p.number("per_mm3", positive=True) / MM**3,
+                             seed=p.count("seed", low=0))
+    p.finish()
 
-    cams = r.get(raw, "cameras", "")
-    capture = r.get(cams, "capture", "cameras")
-    capture_size = (r.count(capture, "width", "cameras.capture"), r.count(capture, "height", "cameras.capture"))
-    c = r.get(cams, "crop", "cameras")
-    crop = Crop(r.count(c, "x", "cameras.crop", low=0), r.count(c, "y", "cameras.crop", low=0),
-                r.count(c, "width", "cameras.crop"), r.count(c, "height", "cameras.crop"))
+    cams = top.child("cameras")
+    capture, c, out, lens_node = cams.child("capture"), cams.child("crop"), cams.child("output"), cams.child("lens")
+    capture_size = (capture.count("width"), capture.count("height"))
+    crop = Crop(c.count("x", low=0), c.count("y", low=0), c.count("width"), c.count("height"))
     if crop.x + crop.width > capture_size[0] or crop.y + crop.height > capture_size[1]:
         raise SensorConfigError(f"{source}: cameras.crop {crop} does not fit in the {capture_size} capture")
-    out = r.get(cams, "output", "cameras")
-    output_size = (r.count(out, "width", "cameras.output"), r.count(out, "height", "cameras.output"))
-    lens_node = r.get(cams, "lens", "cameras")
-    dist = r.get(lens_node, "distortion", "cameras.lens")
-    if not (isinstance(dist, list) and len(dist) == 4):
-        raise SensorConfigError(f"{source}: cameras.lens.distortion must list k1..k4")
-    lens = FisheyeLens(
-        fx=r.number(lens_node, "fx", "cameras.lens", positive=True),
-        fy=r.number(lens_node, "fy", "cameras.lens", positive=True),
-        cx=r.number(lens_node, "cx", "cameras.lens"),
-        cy=r.number(lens_node, "cy", "cameras.lens"),
-        distortion=tuple(float(k) for k in dist),
-    )
-    cameras = []
-    for i, node in enumerate(r.get(cams, "units", "cameras") or []):
-        where = f"cameras.units[{i}]"
-        pos = r.get(node, "position_mm", where)
-        if not (isinstance(pos, list) and len(pos) == 3):
-            raise SensorConfigError(f"{source}: {where}.position_mm must be [x, y, z]")
-        cameras.append(CameraSpec(
-            camera_id=str(r.get(node, "id", where)),
-            position_m=tuple(float(v) * MM for v in pos),
-            yaw_rad=math.radians(r.number(node, "yaw_deg", where)),
-            lens=lens,
-            capture_size=capture_size,
-            crop=crop,
-            output_size=output_size,
-        ))
-    if not cameras:
+    output_size = (out.count("width"), out.count("height"))
+    lens = FisheyeLens(fx=lens_node.number("fx", positive=True), fy=lens_node.number("fy", positive=True),
+                       cx=lens_node.number("cx"), cy=lens_node.number("cy"),
+                       distortion=lens_node.numbers("distortion", 4))
+    for f in (capture, c, out, lens_node):
+        f.finish()
+    unit_nodes = cams.raw("units", required=True)
+    if not isinstance(unit_nodes, list) or not unit_nodes:
         raise SensorConfigError(f"{source}: cameras.units must list at least one camera")
+    cameras = []
+    for i, node in enumerate(unit_nodes):
+        f = _fields(node, f"{source}.cameras.units[{i}]")
+        cameras.append(CameraSpec(camera_id=str(f.raw("id", required=True)),
+                                  position_m=tuple(v * MM for v in f.numbers("position_mm", 3)),
+                                  yaw_rad=math.radians(f.number("yaw_deg")), lens=lens, capture_size=capture_size,
+                                  crop=crop, output_size=output_size))
+        f.finish()
     ids = [cam.camera_id for cam in cameras]
     if len(set(ids)) != len(ids):
         raise SensorConfigError(f"{source}: camera ids must be unique, got {ids}")
+    frame_rate_hz = cams.number("frame_rate_hz", positive=True)
+    cams.finish()
 
-    description = SensorDescription(
-        name=str(r.get(raw, "name", "")),
-        frame_id=str(r.get(raw, "frame_id", "")),
-        grid=grid,
-        gel_layers=tuple(layers),
-        particles=particles,
-        cameras=tuple(cameras),
-        frame_rate_hz=r.number(cams, "frame_rate_hz", "cameras", positive=True),
-        source=source,
-    )
+    description = SensorDescription(name=str(top.raw("name", required=True)),
+                                    frame_id=str(top.raw("frame_id", required=True)), grid=grid,
+                                    gel_layers=tuple(layers), particles=particles, cameras=tuple(cameras),
+                                    frame_rate_hz=frame_rate_hz, source=source)
+    top.finish()
     description.layer(particles.layer)  # raises if the particle layer is not one of the gel layers
     for cam in cameras:
         if cam.position_m[2] > -description.gel_thickness_m:

@@ -73,11 +73,13 @@ def _broken(tmp_path, edit):
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda r: r["surface"].pop("bin_rows"), "missing key surface.bin_rows"),
-    (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be > 0"),
+    (lambda r: r["surface"].pop("bin_rows"), "surface: missing key 'bin_rows'"),
+    (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be a number > 0"),
     (lambda r: r["surface"].update(bin_cols=2.5), "surface.bin_cols must be an integer"),
-    (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), "poisson_ratio must be < 0.5"),
-    (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan), "must be a finite number"),
+    (lambda r: r["surface"].update(bin_colls=25), r"surface: unknown key\(s\) \['bin_colls'\]"),
+    (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), r"gel_layers\[1\].poisson_ratio must be a number in"),
+    (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan), "youngs_modulus_kpa must be a number > 0"),
+    (lambda r: r["particles"].update(diameter_um=[180, 150]), "diameter_um must be \\[min, max\\]"),
     (lambda r: r["particles"].update(layer="nowhere"), "no gel layer named 'nowhere'"),
     (lambda r: r["cameras"]["units"][1].update(id="cam0"), "camera ids must be unique"),
     (lambda r: r["cameras"]["units"][0].update(position_mm=[10, 10, -2]), "inside the gel"),

@@ -23,6 +23,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
+from tactile_description.yaml_fields import is_number
+
 OPTICS, LIGHT, SENSOR, TRANSPORT = 0, 1, 2, 3
 
 #: Length of the pre-generated Gaussian noise pool, in samples (4 MiB of float32). Each frame reads one
@@ -353,10 +355,6 @@ _RULES = {
 }
 
 
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def parse_effect(node, where: str) -> EffectSpec:
     """An effect spec from one entry of a scene's `effects` list: a mapping with `type` and that effect's keys."""
     if not isinstance(node, dict) or "type" not in node:
@@ -396,10 +394,10 @@ def _effect_value(kind: str, key: str, value, where: str):
             raise SceneError(f"{here} must be {expected}, got {value!r}")
         return value
     if kind_of_value == "pair":
-        if not (isinstance(value, list) and len(value) == 2 and all(_number(v) for v in value)) or not check(value):
+        if not (isinstance(value, list) and len(value) == 2 and all(is_number(v) for v in value)) or not check(value):
             raise SceneError(f"{here} must be {expected}, got {value!r}")
         return (float(value[0]), float(value[1]))
-    if not _number(value) or not check(value):
+    if not is_number(value) or not check(value):
         raise SceneError(f"{here} must be a number {expected}, got {value!r}")
     return float(value)
 

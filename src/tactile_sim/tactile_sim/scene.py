@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from tactile_description import SensorDescription, default_sensor_path
+from tactile_description.yaml_fields import YamlFields
 from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, max_depth_m
 from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
 
@@ -31,68 +32,12 @@ SEGMENT_KINDS = ("rest", "press", "contacts", "press_grid", "random_presses", "p
 REGIONS = ("surface", "edges", "corners")
 
 
-# --- reading typed values with errors that name the key -------------------------------------------------------------
-
-class _Node:
-    """One YAML mapping of a scene, with typed getters whose errors name the file and the key path."""
-
-    def __init__(self, node, where: str):
-        if not isinstance(node, dict):
-            raise SceneError(f"{where} must be a mapping, got {node!r}")
-        self.node = node
-        self.where = where
-        self._used: set[str] = set()
-
-    def has(self, key: str) -> bool:
-        return key in self.node
-
-    def raw(self, key: str, default=None, required: bool = False):
-        if key not in self.node:
-            if required:
-                raise SceneError(f"{self.where}: missing key {key!r}")
-            return default
-        self._used.add(key)
-        return self.node[key]
-
-    def number(self, key: str, default=None, low: float = -math.inf, high: float = math.inf) -> float:
-        value = self.raw(key, default, required=default is None)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or not low <= value <= high:
-            raise SceneError(f"{self.where}.{key} must be a number in [{low}, {high}], got {value!r}")
-        return float(value)
-
-    def count(self, key: str, default=None, low: int = 1) -> int:
-        value = self.raw(key, default, required=default is None)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise SceneError(f"{self.where}.{key} must be an integer >= {low}, got {value!r}")
-        return value
-
-    def numbers(self, key: str, length: int, default=None) -> tuple[float, ...]:
-        value = self.raw(key, default, required=default is None)
-        if not (isinstance(value, (list, tuple)) and len(value) == length and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
-            raise SceneError(f"{self.where}.{key} must be a list of {length} numbers, got {value!r}")
-        return tuple(float(v) for v in value)
-
-    def span(self, key: str, default=None, low: float = 0.0) -> tuple[float, float]:
-        """[min, max] with low <= min <= max; a single number means min = max."""
-        value = self.raw(key, default, required=default is None)
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            value = [value, value]
-        if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
-                and low <= value[0] <= value[1]):
-            raise SceneError(f"{self.where}.{key} must be [min, max] with {low} <= min <= max, got {value!r}")
-        return float(value[0]), float(value[1])
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.node) - self._used)
-        if unknown:
-            raise SceneError(f"{self.where}: unknown key(s) {unknown}")
+def _fields(node, where: str) -> YamlFields:
+    return YamlFields(node, where, SceneError)
 
 
 def _indenter(node, where: str) -> Shape:
-    n = _Node(node, where)
+    n = _fields(node, where)
     kind = n.raw("shape", required=True)
     if kind == "sphere":
         shape: Shape = Sphere(0.5 * n.number("diameter_mm", low=0.1, high=1000) * MM)
@@ -122,7 +67,7 @@ class Segment:
 
 
 def _contact(node, where: str, default_shape: Shape) -> tuple[Contact, Shape]:
-    n = _Node(node, where)
+    n = _fields(node, where)
     shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
     x = n.number("x_mm") * MM
     y = n.number("y_mm") * MM
@@ -140,7 +85,7 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
     if kind not in SEGMENT_KINDS:
         raise SceneError(f"{where}: unknown segment kind {kind!r}; known kinds are {list(SEGMENT_KINDS)}")
     where = f"{where}.{kind}"
-    n = _Node(body, where)
+    n = _fields(body, where)
     shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
     params: dict = {"shape": shape}
     if kind == "rest":
@@ -359,7 +304,7 @@ def scenes_directory() -> Path:
 
 def parse_scene(raw, source: str = "scene") -> Scene:
     """A Scene from an already loaded YAML mapping (`source` names it in errors)."""
-    n = _Node(raw, source)
+    n = _fields(raw, source)
     name = n.raw("name", required=True)
     if not isinstance(name, str) or not name:
         raise SceneError(f"{source}.name must be a non-empty string, got {name!r}")

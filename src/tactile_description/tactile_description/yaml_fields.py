@@ -1,0 +1,76 @@
+"""Typed, range-checked reading of YAML mappings, with errors that name the file and the key path.
+
+Used by every YAML file of the stack (sensor descriptions, simulator scenes), so that a typo or an impossible
+value is reported the same way everywhere: which file, which key, what was expected, what was found.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def is_number(value) -> bool:
+    """A finite int or float (bool is not a number here, although Python says it is an int)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+class YamlFields:
+    """One YAML mapping; `finish()` rejects the keys no getter asked for (typos, unsupported options)."""
+
+    def __init__(self, node, where: str, error: type[Exception] = ValueError):
+        if not isinstance(node, dict):
+            raise error(f"{where} must be a mapping, got {node!r}")
+        self.node = node
+        self.where = where
+        self.error = error
+        self._used: set[str] = set()
+
+    def has(self, key: str) -> bool:
+        return key in self.node
+
+    def raw(self, key: str, default=None, required: bool = False):
+        if key not in self.node:
+            if required:
+                raise self.error(f"{self.where}: missing key {key!r}")
+            return default
+        self._used.add(key)
+        return self.node[key]
+
+    def child(self, key: str) -> YamlFields:
+        """The nested mapping under `key` (required)."""
+        return YamlFields(self.raw(key, required=True), f"{self.where}.{key}", self.error)
+
+    def number(self, key: str, default=None, low: float = -math.inf, high: float = math.inf,
+               positive: bool = False) -> float:
+        value = self.raw(key, default, required=default is None)
+        if not is_number(value) or not low <= value <= high or (positive and value <= 0):
+            bounds = "> 0" if positive else f"in [{low}, {high}]"
+            raise self.error(f"{self.where}.{key} must be a number {bounds}, got {value!r}")
+        return float(value)
+
+    def count(self, key: str, default=None, low: int = 1) -> int:
+        value = self.raw(key, default, required=default is None)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise self.error(f"{self.where}.{key} must be an integer >= {low}, got {value!r}")
+        return value
+
+    def numbers(self, key: str, length: int, default=None) -> tuple[float, ...]:
+        value = self.raw(key, default, required=default is None)
+        if not (isinstance(value, (list, tuple)) and len(value) == length and all(is_number(v) for v in value)):
+            raise self.error(f"{self.where}.{key} must be a list of {length} numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+
+    def span(self, key: str, default=None, low: float = 0.0) -> tuple[float, float]:
+        """[min, max] with low <= min <= max; a single number means min = max."""
+        value = self.raw(key, default, required=default is None)
+        if is_number(value):
+            value = [value, value]
+        if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(is_number(v) for v in value)
+                and low <= value[0] <= value[1]):
+            raise self.error(f"{self.where}.{key} must be [min, max] with {low} <= min <= max, got {value!r}")
+        return float(value[0]), float(value[1])
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.node) - self._used)
+        if unknown:
+            raise self.error(f"{self.where}: unknown key(s) {unknown}")
