@@ -1,0 +1,136 @@
+"""rosbag2 bags through the pure-Python `rosbags`: serialized (CDR) messages in, serialized messages out.
+
+Bags are written as rosbag2 version 9 (ROS 2 Kilted) with MCAP storage: a directory holding metadata.yaml and
+one .mcap file, each topic with its type name, definition and type hash, each message with its receive time
+(nanoseconds since the epoch). Reading accepts any rosbag2 bag `rosbags` reads (MCAP or sqlite3).
+Every failure to open or read a bag becomes a BagError that names the bag.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
+
+from tactile_bag.message_types import MessageTypeError, add_types, bag_typestore
+
+#: rosbag2 metadata version written (Kilted's; `ros2 bag` of Jazzy and later reads it).
+BAG_VERSION = 9
+
+#: What rosbags' readers raise on a damaged bag (bad magic, truncated chunk, lengths out of range, bad YAML).
+DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error)
+
+
+class BagError(ValueError):
+    """A bag that cannot be written or read, or does not hold what was asked for."""
+
+
+class BagWriter:
+    """A new MCAP bag; `write` takes a topic, its type name, the receive time in ns and the serialized message.
+
+    Use as a context manager (or call `close`): the MCAP file is only complete, and readable, once closed.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path} already exists: name a new bag directory (a bag is never overwritten)")
+        if not self.path.parent.is_dir():
+            raise BagError(f"{self.path}: the folder {self.path.parent} does not exist; create it first")
+        self.typestore = bag_typestore()
+        self.counts: dict[str, int] = {}
+        self._connections: dict[str, tuple[str, object]] = {}
+        self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        try:
+            self._writer.open()
+        except (WriterError, OSError) as exc:
+            raise BagError(f"{self.path}: cannot create the bag: {exc}") from exc
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """Declare a topic (written into the bag's metadata even if no message follows)."""
+        known = self._connections.get(topic)
+        if known is not None:
+            if known[0] != msgtype:
+                raise BagError(f"{self.path}: topic {topic} is already recorded as {known[0]}, not {msgtype}")
+            return
+        try:
+            add_types(self.typestore, [msgtype])
+        except MessageTypeError as exc:
+            raise BagError(f"{self.path}: cannot record {topic}: {exc}") from exc
+        self._connections[topic] = (msgtype, self._writer.add_connection(topic, msgtype, typestore=self.typestore))
+        self.counts[topic] = 0
+
+    def write(self, topic: str, msgtype: str, time_ns: int, raw: bytes) -> None:
+        self.add_topic(topic, msgtype)
+        self._writer.write(self._connections[topic][1], int(time_ns), raw)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+
+class BagReader:
+    """An existing bag: its topics (name -> type name), message counts and serialized messages in time order."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"bag {self.path} does not exist: give the directory that `tactile-bag record` (or "
+                           "`ros2 bag record`) wrote")
+        try:
+            self._reader = Reader(self.path)
+            self._reader.open()
+        except DAMAGED_BAG_ERRORS as exc:
+            raise BagError(f"bag {self.path} cannot be opened ({exc}); expected a rosbag2 directory with "
+                           "metadata.yaml and its .mcap or .db3 file, complete (a recorder killed with SIGKILL "
+                           "leaves an unreadable file)") from exc
+        self.topics = {c.topic: c.msgtype for c in self._reader.connections}
+        self.counts = dict.fromkeys(self.topics, 0)
+        for connection in self._reader.connections:
+            self.counts[connection.topic] += connection.msgcount
+
+    @property
+    def start_ns(self) -> int:
+        return self._reader.start_time
+
+    @property
+    def duration_s(self) -> float:
+        return self._reader.duration * 1e-9
+
+    def require_topics(self, topics: Iterable[str]) -> list[str]:
+        """`topics` if the bag has every one, else BagError listing what it has."""
+        topics = list(topics)
+        unknown = [t for t in topics if t not in self.topics]
+        if unknown:
+            raise BagError(f"bag {self.path} has no topic {', '.join(unknown)}; its topics are "
+                           f"{sorted(self.topics) or 'none'}")
+        return topics
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """(topic, type name, receive time ns, serialized message) of the given topics (default all), by time."""
+        wanted = set(self.require_topics(topics)) if topics is not None else set(self.topics)
+        connections = [c for c in self._reader.connections if c.topic in wanted]
+        if not connections:
+            return
+        try:
+            for connection, time_ns, raw in self._reader.messages(connections=connections):
+                yield connection.topic, connection.msgtype, time_ns, raw
+        except DAMAGED_BAG_ERRORS as exc:
+            raise BagError(f"bag {self.path} is damaged: reading its messages failed ({exc})") from exc
+
+    def close(self) -> None:
+        self._reader.close()
+
+    def __enter__(self) -> BagReader:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()

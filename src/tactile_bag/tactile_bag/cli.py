@@ -1,0 +1,154 @@
+"""`tactile-bag`: record the tactile graph into rosbag2 (MCAP) bags, replay them, evaluate them offline.
+
+    tactile-bag record OUT --duration S [--topics T ...]     camera images, bundles, estimate, ground truth
+    tactile-bag play BAG [--rate R] [--loop] [--topics T ...]
+    tactile-bag eval BAG [--model DIR] [--json]               metrics against the recorded ground truth
+
+Bad input (a missing or damaged bag, an unknown topic, a bag without camera images, a model that does not fit
+the sensor) ends with one line on stderr and exit status 2. docs/bags.md has the details.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+
+from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, evaluate_bag
+from tactile_bag.topics import GROUND_TRUTH_TOPIC, absolute_topic, default_record_topics, stack_topics
+from tactile_description import load_sensor
+from tactile_fusion.metrics import metrics_table
+
+USAGE_ERROR = 2
+
+
+def cmd_record(args) -> int:
+    from tactile_bag.record import record
+
+    sensor = load_sensor(args.sensor)
+    topics = args.topics or default_record_topics(sensor)
+    rclpy.init()
+    started = time.monotonic()
+    try:
+        counts = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout)
+    finally:
+        rclpy.try_shutdown()
+    total = sum(counts.values())
+    silent = [t for t, n in counts.items() if not n]
+    print(f"recorded {total} messages in {time.monotonic() - started:.1f} s into {args.out}: "
+          + ", ".join(f"{t} {n}" for t, n in counts.items())
+          + (f" (nothing received on {', '.join(silent)})" if silent else ""))
+    return 0 if total else 1
+
+
+def cmd_play(args) -> int:
+    from tactile_bag.play import play
+
+    rclpy.init()
+    started = time.monotonic()
+    try:
+        counts = play(args.bag, args.rate, args.loop, args.topics, args.delay)
+    finally:
+        rclpy.try_shutdown()
+    print(f"played {sum(counts.values())} messages in {time.monotonic() - started:.1f} s from {args.bag}: "
+          + ", ".join(f"{t} {n}" for t, n in counts.items()))
+    return 0
+
+
+def cmd_eval(args) -> int:
+    # Imported here: the model stack (torch, onnxruntime) takes seconds to import and record/play do not need it.
+    from tactile_fusion.inference import load_predictor
+
+    sensor = load_sensor(args.sensor)
+    predictor = load_predictor(args.model, args.backend)
+    truth_topic = absolute_topic(args.truth_topic)
+    result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles, truth_topic)
+    summary = result.summary()
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    origin = "camera images" if result.source == "images" else "recorded bundles"
+    print(f"{args.bag}: {summary['bundles']} bundles from {origin}, the first {summary['reference_bundles']} "
+          "complete ones averaged into the reference frames; "
+          f"{summary['estimates']} estimates ({summary['degraded_estimates']} without every camera)")
+    if summary["skipped"]:
+        print("skipped: " + ", ".join(f"{reason} {n}" for reason, n in summary["skipped"].items()))
+    totals = summary["estimated_total_n"]
+    if totals:
+        print("estimated total force, N (Fx, Fy, Fz): mean " + _triple(totals["mean"]) + "  min "
+              + _triple(totals["min"]) + "  max " + _triple(totals["max"]))
+    if summary["matched_with_ground_truth"]:
+        print(f"{summary['matched_with_ground_truth']} estimates matched with ground truth "
+              f"({summary['ground_truth_messages']} messages on {truth_topic}):")
+        print(metrics_table({Path(result.bag).name: result.metrics()}))
+    elif summary["ground_truth_messages"]:
+        print(f"no estimate lies within {MATCH_TOLERANCE_S * 1e3:g} ms of the {summary['ground_truth_messages']} "
+              f"ground-truth messages on {truth_topic}: estimate statistics only")
+    else:
+        print(f"no ground truth in the bag ({truth_topic}): estimate statistics only")
+    return 0
+
+
+def _triple(values) -> str:
+    return "(" + ", ".join(f"{v:+.4f}" for v in values) + ")"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tactile-bag", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sensor_help = "sensor description YAML (default: the installed one, or $TACTILE_SENSOR_CONFIG)"
+
+    rec = sub.add_parser("record", help="record topics of the live graph into a new MCAP bag")
+    rec.add_argument("out", help="bag directory to create (must not exist)")
+    rec.add_argument("--duration", type=float, required=True, help="seconds to record (Ctrl-C stops earlier)")
+    rec.add_argument("--topics", nargs="+", metavar="TOPIC",
+                     help="topics to record (default: every camera's images, the bundles, the estimate and the "
+                          "ground truth)")
+    rec.add_argument("--sensor", default=None, help=sensor_help)
+    rec.add_argument("--discovery-timeout", type=float, default=2.0, metavar="S",
+                     help="how long to wait for a publisher of a topic outside the stack, to learn its type "
+                          "(default 2)")
+    rec.set_defaults(run=cmd_record)
+
+    ply = sub.add_parser("play", help="republish a bag's messages with their recorded timing")
+    ply.add_argument("bag", help="bag directory")
+    ply.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: as recorded)")
+    ply.add_argument("--loop", action="store_true", help="start over at the end, until Ctrl-C")
+    ply.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)")
+    ply.add_argument("--delay", type=float, default=1.0, metavar="S",
+                     help="wait after creating the publishers, for subscribers to connect (default 1)")
+    ply.set_defaults(run=cmd_play)
+
+    ev = sub.add_parser("eval", help="estimate the forces of a bag offline and compare with its ground truth")
+    ev.add_argument("bag", help="bag directory")
+    ev.add_argument("--model", default=None, help="trained model directory (default: the shipped model)")
+    ev.add_argument("--backend", default="onnxruntime", choices=("onnxruntime", "torch"),
+                    help="inference backend (default onnxruntime, float32)")
+    ev.add_argument("--sensor", default=None, help=sensor_help)
+    ev.add_argument("--source", default="auto", choices=SOURCES,
+                    help="bundle the camera images (images), take the recorded bundles (bundles), or images when "
+                         "the bag has every camera's (auto, default)")
+    ev.add_argument("--reference-bundles", type=int, default=REFERENCE_BUNDLES, metavar="N",
+                    help=f"complete bundles averaged into the reference frames, as fusion_node (default "
+                         f"{REFERENCE_BUNDLES})")
+    ev.add_argument("--truth-topic", default=GROUND_TRUTH_TOPIC, help=f"default {GROUND_TRUTH_TOPIC}")
+    ev.add_argument("--json", action="store_true", help="print one JSON object")
+    ev.set_defaults(run=cmd_eval)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except ValueError as exc:  # BagError, MessageTypeError, SensorConfigError, ModelFileError, bad arguments
+        print(f"tactile-bag {args.command}: error: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

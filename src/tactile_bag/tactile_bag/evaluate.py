@@ -1,0 +1,286 @@
+"""Offline evaluation of a bag, without DDS: what the fusion node would have estimated from the recorded images,
+compared with the simulator's ground truth recorded beside them.
+
+1. Bundles: the camera images are bundled by capture stamp with the live graph's synchroniser
+   (tactile_fusion.approximate_sync, with bundle_node's default settings), or the recorded ImageBundles are
+   taken as they are (a bag without every camera's images, or `source="bundles"`).
+2. Reference frames, as fusion_node takes them: the pixel-wise mean of the first `reference_bundles` complete
+   bundles (every camera present and readable), rounded to uint8. Those bundles are not estimated.
+3. Every later bundle goes through the predictor; a missing or unreadable camera is replaced by its reference
+   frame (it reports "no contact"), as in fusion_node, and the estimate counts as degraded.
+4. Each estimate is matched with the ground-truth message nearest to its bundle stamp, if one lies within
+   `match_tolerance_s` (the bundle stamp is the median of the cameras' capture stamps, the truth is stamped
+   with the capture time), and the paper's metrics are computed over the matched pairs
+   (tactile_fusion.metrics.force_metrics: RMSE per component per bin and of the total force).
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import Image
+
+from tactile_bag.bagfile import BagError, BagReader
+from tactile_bag.topics import BUNDLE_TOPIC, BUNDLE_TYPE, FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
+from tactile_conversions.images import ImageMessageError, msg_to_array
+from tactile_conversions.ros_time import time_to_seconds
+from tactile_description import SensorDescription
+from tactile_description.imaging import FrameError, to_mono8
+from tactile_fusion.approximate_sync import ApproximateTimeSync
+from tactile_fusion.metrics import force_metrics
+from tactile_msgs.msg import ForceDistribution, ImageBundle
+
+if TYPE_CHECKING:  # the model stack (torch, onnxruntime) takes seconds to import: only the caller loads it
+    from tactile_fusion.inference import ForcePredictor
+
+SOURCES = ("auto", "images", "bundles")
+#: Largest distance between an estimate's stamp and its ground truth's (the sensor's frames are 25 ms apart).
+MATCH_TOLERANCE_S = 0.010
+#: fusion_node's default `reference_bundles`.
+REFERENCE_BUNDLES = 10
+
+
+@dataclass
+class BundleFrame:
+    """One bundle as the model sees it: images (C, H, W) uint8 in the sensor's camera order."""
+
+    stamp_s: float
+    images: np.ndarray
+    camera_ok: np.ndarray  # (C,) bool: False for a camera missing from the bundle or with an unreadable image
+
+
+@dataclass
+class BagEvaluation:
+    """Estimates of one bag and their ground truth; `summary()` is what `tactile-bag eval --json` prints."""
+
+    bag: str
+    source: str
+    camera_ids: tuple[str, ...]
+    bundles: int
+    reference_bundles: int
+    stamps_s: np.ndarray            # (N,) bundle stamps of the estimates
+    estimates_n: np.ndarray         # (N, rows, cols, 3) float32
+    camera_ok: np.ndarray           # (N, C) bool
+    truth_messages: int
+    truth_index: np.ndarray         # (N,) index into truth_n of the matched ground truth, -1 for none
+    truth_n: np.ndarray             # (M, rows, cols, 3) float32, every ground truth message of the bag
+    skipped: dict[str, int] = field(default_factory=dict)  # why images or bundles were not used, with counts
+
+    @property
+    def matched(self) -> np.ndarray:
+        return self.truth_index >= 0
+
+    def metrics(self) -> dict | None:
+        """force_metrics over the estimates that have ground truth, or None without any."""
+        if not self.matched.any():
+            return None
+        return force_metrics(self.estimates_n[self.matched], self.truth_n[self.truth_index[self.matched]])
+
+    def summary(self) -> dict:
+        totals = self.estimates_n.astype(np.float64).sum(axis=(1, 2))
+        metrics = self.metrics() or {}
+        missing = sorted({c for row in self.camera_ok for c, ok in zip(self.camera_ids, row, strict=True) if not ok})
+        return {
+            "bag": self.bag,
+            "source": self.source,
+            "bundles": self.bundles,
+            "reference_bundles": self.reference_bundles,
+            "estimates": len(self.stamps_s),
+            "degraded_estimates": int((~self.camera_ok).any(axis=1).sum()),
+            "missing_camera_ids": missing,
+            "skipped": dict(self.skipped),
+            "ground_truth_messages": self.truth_messages,
+            "matched_with_ground_truth": int(self.matched.sum()),
+            "rmse_bin_n": metrics.get("rmse_bin_n"),
+            "rmse_total_n": metrics.get("rmse_total_n"),
+            "rmse_total_fz_percent_range": metrics.get("rmse_total_fz_percent_range"),
+            "max_true_total_fz_n": metrics.get("max_total_fz_n"),
+            "estimated_total_n": {"mean": totals.mean(axis=0).tolist(), "min": totals.min(axis=0).tolist(),
+                                  "max": totals.max(axis=0).tolist()} if len(totals) else None,
+        }
+
+
+def deserialize(raw: bytes, cls: type, topic: str, time_ns: int):
+    try:
+        return deserialize_message(raw, cls)
+    except RuntimeError as exc:  # rclpy's RMWError: the bytes are not a CDR message of this type
+        raise BagError(f"message on {topic} received at {time_ns} ns cannot be read as {cls.__name__}: the bag is "
+                       "damaged or the topic's recorded type is wrong") from exc
+
+
+def choose_source(bag: BagReader, sensor: SensorDescription, source: str = "auto") -> str:
+    """'images' when the bag has every camera's images (or asked), 'bundles' for recorded ImageBundles."""
+    if source not in SOURCES:
+        raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
+    image_topics = [camera_topic(c) for c in sensor.camera_ids]
+    for topic in [*image_topics, BUNDLE_TOPIC]:
+        expected = BUNDLE_TYPE if topic == BUNDLE_TOPIC else IMAGE_TYPE
+        if topic in bag.topics and bag.topics[topic] != expected:
+            raise BagError(f"bag {bag.path}: {topic} holds {bag.topics[topic]}, expected {expected}")
+    without_images = [t for t in image_topics if not bag.counts.get(t)]
+    has_bundles = bool(bag.counts.get(BUNDLE_TOPIC))
+    if source == "images" and without_images or source == "auto" and without_images and not has_bundles:
+        raise BagError(f"bag {bag.path} has no camera images on {without_images}"
+                       + ("" if has_bundles else f" and no image bundles on {BUNDLE_TOPIC}")
+                       + f": record them (the sensor description {sensor.source or sensor.name} names cameras "
+                       f"{list(sensor.camera_ids)})")
+    if source == "bundles" and not has_bundles:
+        raise BagError(f"bag {bag.path} has no image bundles on {BUNDLE_TOPIC}: evaluate its camera images instead "
+                       "(--source images) or record the bundle node's output")
+    if source == "auto":
+        return "bundles" if without_images else "images"
+    return source
+
+
+class FrameReader:
+    """Image messages -> (C, H, W) uint8 frames in the sensor's camera order, counting what was unusable."""
+
+    def __init__(self, sensor: SensorDescription, image_size: int):
+        self.camera_ids = sensor.camera_ids
+        self.shape = (image_size, image_size)
+        self.skipped: dict[str, int] = {}
+
+    def skip(self, reason: str) -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + 1
+
+    def frame(self, stamp_s: float, camera_ids, images: list[Image]) -> BundleFrame:
+        frame = np.zeros((len(self.camera_ids), *self.shape), np.uint8)
+        ok = np.zeros(len(self.camera_ids), bool)
+        for camera_id, msg in zip(camera_ids, images, strict=False):
+            if camera_id not in self.camera_ids:
+                self.skip(f"image of unknown camera {camera_id!r}")
+                continue
+            try:
+                image = to_mono8(msg_to_array(msg, camera_id), camera_id)
+            except (ImageMessageError, FrameError):
+                self.skip(f"unreadable image of {camera_id}")
+                continue
+            if image.shape != self.shape:
+                self.skip(f"{camera_id} image of {image.shape[1]} x {image.shape[0]} pixels")
+                continue
+            i = self.camera_ids.index(camera_id)
+            frame[i], ok[i] = image, True
+        return BundleFrame(stamp_s, frame, ok)
+
+
+def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader) -> Iterator[BundleFrame]:
+    """The camera images bundled as bundle_node bundles them (same synchroniser, same default settings)."""
+    period_s = 1.0 / sensor.frame_rate_hz
+    sync: ApproximateTimeSync[Image] = ApproximateTimeSync(sensor.camera_ids, queue_size=10,
+                                                           max_spread_s=0.5 * period_s, min_period_s=0.5 * period_s)
+    cameras = {camera_topic(c): c for c in sensor.camera_ids}
+    for topic, _, time_ns, raw in bag.messages(list(cameras)):
+        msg = deserialize(raw, Image, topic, time_ns)
+        for bundle in sync.add(cameras[topic], time_to_seconds(msg.header.stamp), msg):
+            yield reader.frame(statistics.median(bundle.stamps), bundle.stream_ids, list(bundle.items))
+    for reason in ("out_of_order", "queue_overflow", "too_wide", "superseded"):
+        if getattr(sync.dropped, reason):
+            reader.skipped[f"images dropped by the synchroniser ({reason})"] = getattr(sync.dropped, reason)
+
+
+def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFrame]:
+    for topic, _, time_ns, raw in bag.messages([BUNDLE_TOPIC]):
+        msg = deserialize(raw, ImageBundle, topic, time_ns)
+        yield reader.frame(time_to_seconds(msg.header.stamp), list(msg.camera_ids), list(msg.images))
+
+
+def read_ground_truth(bag: BagReader, sensor: SensorDescription,
+                      topic: str = GROUND_TRUTH_TOPIC) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (M,) in seconds and forces (M, rows, cols, 3) of the bag's ground truth (empty without any)."""
+    rows, cols = sensor.grid.rows, sensor.grid.cols
+    if topic not in bag.topics:
+        return np.zeros(0), np.zeros((0, rows, cols, 3), np.float32)
+    if bag.topics[topic] != FORCES_TYPE:
+        raise BagError(f"bag {bag.path}: {topic} holds {bag.topics[topic]}, expected {FORCES_TYPE}")
+    stamps, forces = [], []
+    for _, _, time_ns, raw in bag.messages([topic]):
+        msg = deserialize(raw, ForceDistribution, topic, time_ns)
+        if (msg.rows, msg.cols) != (rows, cols) or len(msg.forces_n) != rows * cols * 3:
+            raise BagError(f"bag {bag.path}: ground truth on {topic} has {msg.rows} x {msg.cols} bins and "
+                           f"{len(msg.forces_n)} values, the sensor description has {rows} x {cols}: evaluate "
+                           "with the sensor description the bag was recorded with (--sensor)")
+        values = np.asarray(msg.forces_n, dtype=np.float32).reshape(rows, cols, 3)
+        if not np.isfinite(values).all():
+            raise BagError(f"bag {bag.path}: ground truth on {topic} at {time_ns} ns holds NaN or Inf")
+        stamps.append(time_to_seconds(msg.header.stamp))
+        forces.append(values)
+    if not forces:
+        return np.zeros(0), np.zeros((0, rows, cols, 3), np.float32)
+    return np.asarray(stamps), np.stack(forces)
+
+
+def match_stamps(stamps_s: np.ndarray, truth_stamps_s: np.ndarray, tolerance_s: float = MATCH_TOLERANCE_S
+                 ) -> np.ndarray:
+    """For each stamp, the index of the nearest truth stamp within `tolerance_s` (inclusive), else -1."""
+    stamps_s = np.asarray(stamps_s, dtype=np.float64)
+    if not len(truth_stamps_s):
+        return np.full(len(stamps_s), -1)
+    order = np.argsort(truth_stamps_s, kind="stable")
+    sorted_truth = np.asarray(truth_stamps_s, dtype=np.float64)[order]
+    after = np.searchsorted(sorted_truth, stamps_s)  # first truth at or after each stamp, len(truth) if none
+    left = np.clip(after - 1, 0, len(sorted_truth) - 1)
+    right = np.clip(after, 0, len(sorted_truth) - 1)
+    nearest = np.where(np.abs(sorted_truth[left] - stamps_s) <= np.abs(sorted_truth[right] - stamps_s), left, right)
+    index = order[nearest]
+    return np.where(np.abs(sorted_truth[nearest] - stamps_s) <= tolerance_s, index, -1)
+
+
+def check_predictor(predictor: ForcePredictor, sensor: SensorDescription) -> None:
+    if sorted(predictor.camera_ids) != sorted(sensor.camera_ids) or \
+            (predictor.rows, predictor.cols) != (sensor.grid.rows, sensor.grid.cols):
+        raise BagError(f"the model is for cameras {list(predictor.camera_ids)} and {predictor.rows} x "
+                       f"{predictor.cols} bins, the sensor description {sensor.source or sensor.name} has cameras "
+                       f"{list(sensor.camera_ids)} and {sensor.grid.rows} x {sensor.grid.cols} bins: give the "
+                       "model (--model) and the description (--sensor) of the sensor that recorded the bag")
+
+
+def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePredictor, source: str = "auto",
+                 reference_bundles: int = REFERENCE_BUNDLES, truth_topic: str = GROUND_TRUTH_TOPIC,
+                 match_tolerance_s: float = MATCH_TOLERANCE_S) -> BagEvaluation:
+    """Estimate the force of every bundle of the bag after the reference ones and match the ground truth."""
+    if reference_bundles < 1:
+        raise ValueError(f"reference_bundles must be >= 1, got {reference_bundles}")
+    check_predictor(predictor, sensor)
+    with BagReader(path) as bag:
+        source = choose_source(bag, sensor, source)
+        truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic)
+        reader = FrameReader(sensor, predictor.image_size)
+        frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
+        reference_sum = np.zeros((sensor.n_cameras, *reader.shape), np.float64)
+        reference_count, bundles = 0, 0
+        reference = None
+        stamps, estimates, camera_ok = [], [], []
+        for frame in frames:
+            bundles += 1
+            if reference is None:
+                if frame.camera_ok.all():
+                    reference_sum += frame.images
+                    reference_count += 1
+                    if reference_count == reference_bundles:
+                        reference = np.rint(reference_sum / reference_count).astype(np.uint8)
+                continue
+            if not frame.camera_ok.any():
+                reader.skip("bundle without any usable image")
+                continue
+            estimates.append(predictor.predict(frame.images, reference, camera_ids=sensor.camera_ids,
+                                               camera_ok=frame.camera_ok))
+            stamps.append(frame.stamp_s)
+            camera_ok.append(frame.camera_ok)
+    if reference is None:
+        raise BagError(f"bag {path}: only {reference_count} complete bundle(s) of {bundles}, the reference frames "
+                       f"need {reference_bundles}; record longer at rest first, or lower --reference-bundles")
+    stamps_s = np.asarray(stamps, dtype=np.float64)
+    return BagEvaluation(
+        bag=str(path), source=source, camera_ids=sensor.camera_ids, bundles=bundles,
+        reference_bundles=reference_bundles, stamps_s=stamps_s,
+        estimates_n=np.stack(estimates) if estimates else np.zeros((0, sensor.grid.rows, sensor.grid.cols, 3),
+                                                                    np.float32),
+        camera_ok=np.array(camera_ok, bool).reshape(len(stamps), sensor.n_cameras),
+        truth_messages=len(truth_stamps), truth_index=match_stamps(stamps_s, truth_stamps, match_tolerance_s),
+        truth_n=truth, skipped=reader.skipped)

@@ -1,0 +1,75 @@
+"""Replay a bag: every message republished as recorded (serialized bytes, never deserialized) with the bag's
+timing, scaled by `rate`, on publishers of the recorded types and the stack's QoS (tactile_bag.topics).
+
+Messages keep their recorded header stamps: the bundle and fusion nodes work on capture stamps, so they
+process a replay as they processed the live stream (no /clock is published).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+
+from tactile_bag.bagfile import BagError, BagReader
+from tactile_bag.message_types import MessageTypeError, message_class
+from tactile_bag.topics import absolute_topic, qos_profile
+
+
+def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequence[str] | None = None,
+         start_delay_s: float = 1.0) -> dict[str, int]:
+    """Publish the bag's messages (or those of `topics`); returns messages published per topic.
+
+    start_delay_s: time between creating the publishers and the first message, for subscribers to discover
+    them (messages published before a subscriber has matched are lost to it, as with `ros2 bag play --delay`).
+    rclpy must be initialised by the caller. Ctrl-C stops the replay.
+    """
+    if not rate > 0:
+        raise ValueError(f"--rate must be > 0, got {rate}")
+    if start_delay_s < 0:
+        raise ValueError(f"--delay must be >= 0 s, got {start_delay_s}")
+    with BagReader(path) as bag:
+        selected = bag.require_topics([absolute_topic(t) for t in topics]) if topics else sorted(bag.topics)
+        if not sum(bag.counts[t] for t in selected):
+            raise BagError(f"bag {bag.path} holds no messages on {selected}: nothing to play")
+        node = Node("tactile_bag_player")
+        try:
+            try:
+                publishers = {t: node.create_publisher(message_class(bag.topics[t]), t, qos_profile(bag.topics[t]))
+                              for t in selected}
+            except MessageTypeError as exc:
+                raise BagError(f"bag {bag.path}: cannot replay: {exc}") from exc
+            counts = dict.fromkeys(selected, 0)
+            time.sleep(start_delay_s)
+            try:
+                while _play_once(bag, selected, publishers, counts, rate) and loop:
+                    pass
+            except KeyboardInterrupt:
+                pass
+            return counts
+        finally:
+            node.destroy_node()
+
+
+def _play_once(bag: BagReader, topics: list[str], publishers: dict, counts: dict[str, int], rate: float) -> bool:
+    """One pass over the bag: message i goes out (t_i - t_0) / rate after the pass started.
+
+    Returns False when ROS was shut down meanwhile (SIGTERM), True at the end of the bag.
+    """
+    start_wall = time.monotonic()
+    first_ns = None
+    for topic, _, time_ns, raw in bag.messages(topics):
+        if first_ns is None:
+            first_ns = time_ns
+        due = start_wall + (time_ns - first_ns) * 1e-9 / rate
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        if not rclpy.ok():
+            return False
+        publishers[topic].publish(raw)
+        counts[topic] += 1
+    return True

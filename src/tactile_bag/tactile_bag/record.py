@@ -1,0 +1,93 @@
+"""Record topics of the live graph into a bag: raw (serialized) subscriptions, each message stored with its
+receive time, as `ros2 bag record` does (messages are never deserialized, so recording costs little CPU).
+
+Topic types: the stack's own topics (tactile_bag.topics) are known in advance, so recording can start before
+their publishers; any other topic must have a publisher in the graph within the discovery timeout, which tells
+its type.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+
+from tactile_bag.bagfile import BagError, BagWriter
+from tactile_bag.message_types import MessageTypeError, message_class
+from tactile_bag.topics import absolute_topic, qos_profile
+
+
+class Recorder(Node):
+    """Subscribes every topic raw and writes each message into `bag` as it arrives."""
+
+    def __init__(self, bag: BagWriter, topic_types: dict[str, str]):
+        super().__init__("tactile_bag_recorder")
+        self.bag = bag
+        for topic, msgtype in topic_types.items():
+            bag.add_topic(topic, msgtype)
+            self.create_subscription(message_class(msgtype), topic,
+                                     lambda raw, t=topic, m=msgtype: self.on_message(t, m, raw),
+                                     qos_profile(msgtype), raw=True)
+
+    def on_message(self, topic: str, msgtype: str, raw: bytes) -> None:
+        self.bag.write(topic, msgtype, self.get_clock().now().nanoseconds, raw)
+
+
+def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str],
+                        discovery_timeout_s: float) -> dict[str, str]:
+    """topic -> type name: from `known`, else from the publishers the graph shows within the timeout."""
+    types = {t: known[t] for t in topics if t in known}
+    deadline = time.monotonic() + discovery_timeout_s
+    while len(types) < len(topics):
+        graph = dict(node.get_topic_names_and_types())
+        for topic in topics:
+            if topic not in types and graph.get(topic):
+                if len(graph[topic]) > 1:
+                    raise BagError(f"topic {topic} is published with several types {graph[topic]}: cannot record it")
+                types[topic] = graph[topic][0]
+        if time.monotonic() >= deadline:
+            break
+        rclpy.spin_once(node, timeout_sec=0.1)
+    unknown = [t for t in topics if t not in types]
+    if unknown:
+        raise BagError(f"unknown topic {', '.join(unknown)}: not a topic of the tactile stack and no publisher seen "
+                       f"within {discovery_timeout_s:g} s; check the name or start its publisher first")
+    return {t: types[t] for t in topics}
+
+
+def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], duration_s: float,
+           discovery_timeout_s: float = 2.0) -> dict[str, int]:
+    """Record `topics` into the new bag `out` for `duration_s` seconds (or until Ctrl-C); messages per topic.
+
+    rclpy must be initialised by the caller. The bag is closed (complete and readable) however recording ends.
+    """
+    if duration_s <= 0:
+        raise ValueError(f"--duration must be > 0 seconds, got {duration_s}")
+    out = Path(out)
+    if out.exists():
+        raise BagError(f"{out} already exists: name a new bag directory (a bag is never overwritten)")
+    topics = list(dict.fromkeys(absolute_topic(t) for t in topics))
+    probe = Node("tactile_bag_discovery")
+    try:
+        topic_types = resolve_topic_types(probe, topics, known_types, discovery_timeout_s)
+    finally:
+        probe.destroy_node()
+    try:
+        for msgtype in set(topic_types.values()):
+            message_class(msgtype)
+    except MessageTypeError as exc:
+        raise BagError(f"cannot record: {exc}") from exc
+    with BagWriter(out) as bag:
+        recorder = Recorder(bag, topic_types)
+        try:
+            end = time.monotonic() + duration_s
+            while time.monotonic() < end:
+                rclpy.spin_once(recorder, timeout_sec=min(0.1, max(0.0, end - time.monotonic())))
+        except KeyboardInterrupt:
+            pass
+        finally:
+            recorder.destroy_node()
+        return dict(bag.counts)

@@ -1,0 +1,56 @@
+"""The topics of the tactile graph (docs/nodes.md), their message types, and the QoS to record and replay them."""
+
+from __future__ import annotations
+
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from tactile_description import SensorDescription
+
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+BUNDLE_TYPE = "tactile_msgs/msg/ImageBundle"
+FORCES_TYPE = "tactile_msgs/msg/ForceDistribution"
+
+BUNDLE_TOPIC = "/tactile/image_bundle"
+ESTIMATE_TOPIC = "/tactile/force_distribution"
+GROUND_TRUTH_TOPIC = "/tactile/ground_truth/force_distribution"
+WRENCH_TOPIC = "/tactile/wrench"
+MARKERS_TOPIC = "/tactile/force_markers"
+
+#: Queue depth of reliable subscriptions and publishers: a second of the sensor's frames and then some.
+RELIABLE_DEPTH = 100
+
+
+def camera_topic(camera_id: str) -> str:
+    return f"/tactile/{camera_id}/image"
+
+
+def stack_topics(sensor: SensorDescription) -> dict[str, str]:
+    """Every topic the graph of `sensor` publishes -> its message type."""
+    topics = {camera_topic(c): IMAGE_TYPE for c in sensor.camera_ids}
+    topics.update({BUNDLE_TOPIC: BUNDLE_TYPE, ESTIMATE_TOPIC: FORCES_TYPE, GROUND_TRUTH_TOPIC: FORCES_TYPE,
+                   WRENCH_TOPIC: "geometry_msgs/msg/WrenchStamped",
+                   MARKERS_TOPIC: "visualization_msgs/msg/MarkerArray"})
+    return topics
+
+
+def default_record_topics(sensor: SensorDescription) -> list[str]:
+    """What `tactile-bag record` takes without --topics: the images, the bundles, the estimate and the truth."""
+    return [*(camera_topic(c) for c in sensor.camera_ids), BUNDLE_TOPIC, ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC]
+
+
+def absolute_topic(name: str) -> str:
+    """A topic name as the graph resolves it in the root namespace ('tactile/x' -> '/tactile/x')."""
+    name = name.strip()
+    if not name or name == "/":
+        raise ValueError(f"topic name {name!r} is empty; give e.g. {BUNDLE_TOPIC}")
+    return name if name.startswith("/") else "/" + name
+
+
+def qos_profile(msgtype: str) -> QoSProfile:
+    """Camera images travel with sensor-data QoS (best effort) as the camera drivers publish them; the rest is
+    reliable. A best-effort subscription also receives from a reliable publisher, and a reliable subscriber of
+    images (none in this stack) would not match a best-effort replay, so images are replayed best effort too.
+    """
+    if msgtype == IMAGE_TYPE:
+        return qos_profile_sensor_data
+    return QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)

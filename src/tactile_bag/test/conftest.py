@@ -1,0 +1,99 @@
+"""Bags written from simulator frames, as the live graph would have recorded them, and a small real model.
+
+`write_sim_bag` stamps every message as sim_camera_node and bundle_node do: each camera's image at the
+capture time plus a random offset of up to 2 ms, the ground truth at the capture time, the bundle at the median
+of its images' stamps; receive times lag the stamps by a millisecond or two.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from rclpy.serialization import serialize_message
+from tactile_bag.bagfile import BagWriter
+from tactile_bag.topics import BUNDLE_TOPIC, BUNDLE_TYPE, FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
+
+from tactile_conversions.forces import force_distribution_msg
+from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.ros_time import seconds_to_time
+from tactile_description import load_sensor
+from tactile_fusion.artifacts import save_model
+from tactile_fusion.model import ModelConfig
+from tactile_fusion.training import build_model
+from tactile_msgs.msg import ImageBundle
+from tactile_sim import Simulator, load_scene
+
+START_S = 1_700_000_000.0  # capture time of the first frame, like a wall clock
+JITTER_S = 0.002
+
+
+@pytest.fixture(scope="session")
+def sensor():
+    return load_sensor()
+
+
+@pytest.fixture(scope="session")
+def sim_frames(sensor):
+    """The first 40 frames of the demo scene: 20 at rest, then the sphere presses in."""
+    return list(Simulator(sensor).stream(load_scene("demo", sensor), frames=40))
+
+
+def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool = False, truth: bool = True,
+                  truth_offset_s: float = 0.0, seed: int = 0) -> list[float]:
+    """Write `frames` into a new bag; returns each frame's capture time (s).
+
+    Images are stamped in [capture, capture + JITTER_S], the ground truth at capture + truth_offset_s.
+    """
+    rng = np.random.default_rng(seed)
+    captures = []
+    with BagWriter(path) as bag:
+        for frame in frames:
+            capture_s = START_S + frame.time_s
+            captures.append(capture_s)
+            receive_ns = round(capture_s * 1e9) + 1_000_000
+            msgs = []
+            for i, camera_id in enumerate(sensor.camera_ids):
+                if frame.camera_ok[i]:
+                    stamp = seconds_to_time(capture_s + rng.uniform(0.0, JITTER_S))
+                    msgs.append(mono8_to_msg(frame.images[i], stamp, f"{camera_id}_optical"))
+                    if images:
+                        bag.write(camera_topic(camera_id), IMAGE_TYPE, receive_ns + i, serialize_message(msgs[-1]))
+            if truth:
+                truth_stamp = seconds_to_time(capture_s + truth_offset_s)
+                msg = force_distribution_msg(frame.bin_forces_n, sensor.grid, truth_stamp, sensor.frame_id,
+                                             sensor.camera_ids, [])
+                bag.write(GROUND_TRUTH_TOPIC, FORCES_TYPE, receive_ns + 100, serialize_message(msg))
+            if bundles and msgs:
+                stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs]
+                bundle = ImageBundle(camera_ids=[m.header.frame_id.removesuffix("_optical") for m in msgs],
+                                     images=msgs, max_stamp_spread_s=max(stamps) - min(stamps))
+                bundle.header.stamp = seconds_to_time(float(np.median(stamps)))
+                bundle.header.frame_id = sensor.frame_id
+                bag.write(BUNDLE_TOPIC, BUNDLE_TYPE, receive_ns + 1_000_000, serialize_message(bundle))
+    return captures
+
+
+@pytest.fixture(scope="session")
+def write_bag():
+    """write_sim_bag itself, for tests that need a bag of their own (conftest is not importable here)."""
+    write_sim_bag.jitter_s = JITTER_S
+    return write_sim_bag
+
+
+@pytest.fixture(scope="session")
+def sim_bag(tmp_path_factory, sensor, sim_frames):
+    """Camera images and ground truth of the 40 demo frames."""
+    path = tmp_path_factory.mktemp("bags") / "demo"
+    write_sim_bag(path, sensor, sim_frames)
+    return path
+
+
+@pytest.fixture(scope="session")
+def model_dir(tmp_path_factory, sensor):
+    """An untrained model of the reference sensor's shape (small layers): a real predictor, quick to build."""
+    config = ModelConfig(image_size=128, conv_channels=(4, 4, 4), hidden_features=16, camera_features=8,
+                         fusion_rank=4)
+    model = build_model(config, sensor.camera_ids, sensor.grid.rows, sensor.grid.cols,
+                        torch.tensor([0.001, 0.001, 0.01]), seed=0)
+    return save_model(model, tmp_path_factory.mktemp("model"), sensor.name)

@@ -1,0 +1,123 @@
+"""Writing bags with rosbags and reading them back; what a damaged or missing bag gives."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ament_index_python.packages import get_package_share_directory
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import Image
+from tactile_bag.bagfile import BagError, BagReader, BagWriter
+from tactile_bag.message_types import MessageTypeError, bag_typestore, message_class
+from tactile_bag.topics import FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
+
+from tactile_msgs.msg import ForceDistribution
+
+
+def test_simulated_frames_read_back_unchanged(sim_bag, sensor, sim_frames):
+    with BagReader(sim_bag) as bag:
+        expected = {camera_topic(c): IMAGE_TYPE for c in sensor.camera_ids} | {GROUND_TRUTH_TOPIC: FORCES_TYPE}
+        assert bag.topics == expected
+        assert bag.counts == dict.fromkeys(expected, len(sim_frames))
+        messages = list(bag.messages())
+    times = [t for _, _, t, _ in messages]
+    assert times == sorted(times)
+    images = [deserialize_message(raw, Image) for topic, _, _, raw in messages if topic == camera_topic("cam2")]
+    for frame, msg in zip(sim_frames, images, strict=True):
+        assert (msg.height, msg.width, msg.encoding) == (128, 128, "mono8")
+        np.testing.assert_array_equal(np.frombuffer(bytes(msg.data), np.uint8).reshape(128, 128), frame.images[2])
+    truths = [deserialize_message(raw, ForceDistribution) for topic, _, _, raw in messages
+              if topic == GROUND_TRUTH_TOPIC]
+    for frame, msg in zip(sim_frames, truths, strict=True):
+        np.testing.assert_array_equal(np.asarray(msg.forces_n).reshape(frame.bin_forces_n.shape), frame.bin_forces_n)
+
+
+def test_bag_metadata_carries_the_installed_type_hashes(sim_bag):
+    """`ros2 bag` checks each topic's type hash (RIHS01) against the installed interface: they must agree."""
+    metadata = (Path(sim_bag) / "metadata.yaml").read_text()
+    for msgtype in (IMAGE_TYPE, FORCES_TYPE):
+        package, _, name = msgtype.split("/")
+        rosidl = json.loads((Path(get_package_share_directory(package)) / "msg" / f"{name}.json").read_text())
+        hash_string = next(h["hash_string"] for h in rosidl["type_hashes"] if h["type_name"] == msgtype)
+        assert hash_string in metadata
+    assert "storage_identifier: mcap" in metadata and "version: 9" in metadata
+
+
+def test_rosbags_reads_the_cdr_that_rclpy_wrote(sim_bag, sim_frames):
+    """The bag's bytes are plain CDR: the pure-Python reader decodes rclpy's serialization of our own type."""
+    typestore = bag_typestore([FORCES_TYPE])
+    with BagReader(sim_bag) as bag:
+        raw = [raw for _, _, _, raw in bag.messages([GROUND_TRUTH_TOPIC])][-1]
+    msg = typestore.deserialize_cdr(raw, FORCES_TYPE)
+    np.testing.assert_array_equal(msg.forces_n.reshape(msg.rows, msg.cols, 3), sim_frames[-1].bin_forces_n)
+    assert msg.total_force_n.z == pytest.approx(float(sim_frames[-1].bin_forces_n[..., 2].sum()), rel=1e-5)
+
+
+def test_a_declared_topic_without_messages_is_listed(tmp_path):
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.add_topic("/tactile/cam0/image", IMAGE_TYPE)
+    with BagReader(tmp_path / "bag") as bag:
+        assert bag.topics == {"/tactile/cam0/image": IMAGE_TYPE}
+        assert bag.counts == {"/tactile/cam0/image": 0}
+        assert list(bag.messages()) == []
+
+
+def test_a_topic_keeps_one_type(tmp_path):
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.add_topic("/x", IMAGE_TYPE)
+        with pytest.raises(BagError, match="already recorded as sensor_msgs/msg/Image"):
+            bag.add_topic("/x", FORCES_TYPE)
+
+
+def test_writer_never_overwrites(sim_bag, tmp_path):
+    with pytest.raises(BagError, match="already exists"):
+        BagWriter(sim_bag)
+    with pytest.raises(BagError, match="does not exist; create it first"):
+        BagWriter(tmp_path / "no" / "bag")
+
+
+def test_unknown_message_types_are_refused(tmp_path):
+    with BagWriter(tmp_path / "bag") as bag, pytest.raises(BagError, match="no_such_msgs is not installed"):
+        bag.add_topic("/x", "no_such_msgs/msg/Thing")
+    with pytest.raises(MessageTypeError, match="expected 'package/msg/Name'"):
+        message_class("sensor_msgs/Image")
+    with pytest.raises(MessageTypeError, match="sensor_msgs has no message Imag"):
+        message_class("sensor_msgs/msg/Imag")
+    assert message_class(FORCES_TYPE) is ForceDistribution
+
+
+def test_missing_bag(tmp_path):
+    with pytest.raises(BagError, match="does not exist"):
+        BagReader(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match="cannot be opened"):
+        BagReader(tmp_path / "empty")
+
+
+def copy_bag(source: Path, target: Path) -> Path:
+    target.mkdir()
+    for path in source.iterdir():
+        (target / path.name).write_bytes(path.read_bytes())
+    return target
+
+
+def test_truncated_bag(sim_bag, tmp_path):
+    """What a recorder killed with SIGKILL leaves: an MCAP file without its end."""
+    bag = copy_bag(sim_bag, tmp_path / "truncated")
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    with pytest.raises(BagError, match=r"cannot be opened \(.*\); expected a rosbag2 directory"):
+        BagReader(bag)
+
+
+def test_damaged_metadata(sim_bag, tmp_path):
+    bag = copy_bag(sim_bag, tmp_path / "damaged")
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [1")
+    with pytest.raises(BagError, match="cannot be opened"):
+        BagReader(bag)
+
+
+def test_unknown_topic_names_what_the_bag_has(sim_bag):
+    with BagReader(sim_bag) as bag, pytest.raises(BagError, match=r"no topic /tactile/wrench; its topics are \["):
+        list(bag.messages(["/tactile/wrench"]))

@@ -1,0 +1,158 @@
+"""Offline evaluation: bundling recorded images, reference frames, ground-truth matching, metrics, errors."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from tactile_bag.bagfile import BagError, BagReader
+from tactile_bag.cli import main
+from tactile_bag.evaluate import FrameReader, evaluate_bag, image_bundles, match_stamps
+
+from tactile_fusion.inference import load_predictor
+from tactile_fusion.metrics import force_metrics
+
+
+@pytest.fixture(scope="module")
+def predictor(model_dir):
+    return load_predictor(model_dir, "torch")
+
+
+def test_images_are_bundled_frame_by_frame(tmp_path, write_bag, sensor, sim_frames):
+    captures = write_bag(tmp_path / "bag", sensor, sim_frames)
+    reader = FrameReader(sensor, 128)
+    with BagReader(tmp_path / "bag") as bag:
+        bundles = list(image_bundles(bag, sensor, reader))
+    # The synchroniser waits for a later image before it lets the newest frame go: all but the last are bundled.
+    assert len(bundles) >= len(sim_frames) - 1
+    for frame, capture_s, bundle in zip(sim_frames, captures, bundles, strict=False):
+        assert bundle.camera_ok.all()
+        np.testing.assert_array_equal(bundle.images, frame.images)
+        assert capture_s <= bundle.stamp_s <= capture_s + write_bag.jitter_s
+    assert not reader.skipped
+
+
+def test_estimates_are_the_predictors_against_the_mean_of_the_first_bundles(sim_bag, sensor, sim_frames, predictor):
+    result = evaluate_bag(sim_bag, sensor, predictor, reference_bundles=10)
+    assert result.source == "images"
+    n = len(result.stamps_s)
+    assert n >= len(sim_frames) - 11
+    reference = np.rint(np.mean([f.images for f in sim_frames[:10]], axis=0)).astype(np.uint8)
+    frames = sim_frames[10:10 + n]
+    expected = np.stack([predictor.predict(f.images, reference) for f in frames])
+    np.testing.assert_allclose(result.estimates_n, expected, rtol=1e-5, atol=1e-7)
+    # Each estimate is matched with the ground truth of its own frame.
+    np.testing.assert_array_equal(result.truth_index, np.arange(10, 10 + n))
+    truth = np.stack([f.bin_forces_n for f in frames])
+    direct = force_metrics(expected, truth)
+    assert result.metrics()["rmse_bin_n"] == pytest.approx(direct["rmse_bin_n"], rel=1e-5)
+    assert result.metrics()["rmse_total_n"] == pytest.approx(direct["rmse_total_n"], rel=1e-5)
+    summary = result.summary()
+    assert summary["matched_with_ground_truth"] == summary["estimates"] == n
+    assert summary["degraded_estimates"] == 0 and summary["missing_camera_ids"] == []
+    json.dumps(summary)  # plain types only
+
+
+def test_recorded_bundles_give_the_same_estimates(tmp_path, write_bag, sensor, sim_frames, predictor):
+    write_bag(tmp_path / "bag", sensor, sim_frames, images=True, bundles=True)
+    from_images = evaluate_bag(tmp_path / "bag", sensor, predictor, source="images")
+    from_bundles = evaluate_bag(tmp_path / "bag", sensor, predictor, source="bundles")
+    assert from_bundles.source == "bundles" and from_bundles.bundles == len(sim_frames)
+    n = len(from_images.stamps_s)
+    np.testing.assert_allclose(from_bundles.stamps_s[:n], from_images.stamps_s, rtol=0, atol=1e-6)  # ns stamps
+    np.testing.assert_allclose(from_bundles.estimates_n[:n], from_images.estimates_n, rtol=1e-6)
+
+
+def test_a_dropped_camera_degrades_recorded_bundles(tmp_path, write_bag, sensor, sim_frames, predictor):
+    frames = [dataclasses.replace(f, camera_ok=np.array([c != "cam1" or f.index % 5 for c in sensor.camera_ids]))
+              for f in sim_frames]
+    write_bag(tmp_path / "bag", sensor, frames, images=False, bundles=True)
+    result = evaluate_bag(tmp_path / "bag", sensor, predictor)
+    assert result.source == "bundles"  # cam1's images are not all there, the bundles are
+    complete = [f.index for f in frames if f.camera_ok.all()]
+    last_reference = complete[9]  # the reference takes the first 10 complete bundles, skipping degraded ones
+    summary = result.summary()
+    assert summary["missing_camera_ids"] == ["cam1"]
+    assert summary["estimates"] == len(frames) - 1 - last_reference
+    assert summary["degraded_estimates"] == len([f for f in frames[last_reference:] if not f.camera_ok.all()]) > 0
+
+
+def test_without_ground_truth_only_statistics(tmp_path, write_bag, sensor, sim_frames, predictor):
+    write_bag(tmp_path / "bag", sensor, sim_frames, truth=False)
+    result = evaluate_bag(tmp_path / "bag", sensor, predictor)
+    summary = result.summary()
+    assert result.metrics() is None and summary["rmse_bin_n"] is None and summary["ground_truth_messages"] == 0
+    totals = result.estimates_n.astype(np.float64).sum(axis=(1, 2))
+    assert summary["estimated_total_n"]["max"] == pytest.approx(totals.max(axis=0).tolist())
+
+
+# Frames are 25 ms apart and bundle stamps up to 2 ms after the capture: 12.5 ms off is 10.5 ms from any truth.
+@pytest.mark.parametrize(("offset_s", "matched"), [(0.005, True), (-0.005, True), (0.0125, False)])
+def test_ground_truth_is_matched_within_10_ms(tmp_path, write_bag, sensor, sim_frames, predictor, offset_s, matched):
+    write_bag(tmp_path / "bag", sensor, sim_frames, truth_offset_s=offset_s)
+    result = evaluate_bag(tmp_path / "bag", sensor, predictor)
+    assert result.truth_messages == len(sim_frames)
+    assert result.matched.all() if matched else not result.matched.any()
+
+
+def test_match_stamps_examples():
+    truth = np.array([3.0, 1.0, 2.0])
+    np.testing.assert_array_equal(match_stamps(np.array([0.995, 1.4, 2.01, 3.02, 5.0]), truth, 0.011),
+                                  [1, -1, 2, -1, -1])
+    np.testing.assert_array_equal(match_stamps(np.array([1.0]), np.zeros(0)), [-1])
+    np.testing.assert_array_equal(match_stamps(np.array([0.0, 7.0]), np.array([7.005]), 0.01), [-1, 0])
+
+
+@given(st.lists(st.floats(0, 10), min_size=1, max_size=8), st.lists(st.floats(0, 10), max_size=8))
+def test_match_stamps_is_the_nearest_within_tolerance(truth, stamps):
+    truth, stamps = np.array(truth), np.array(stamps)
+    index = match_stamps(stamps, truth, 0.5)
+    for stamp, i in zip(stamps, index, strict=True):
+        distance = np.abs(truth - stamp)
+        if i < 0:
+            assert distance.min() > 0.5
+        else:
+            assert distance[i] == distance.min() <= 0.5
+
+
+def test_too_few_complete_bundles_for_the_reference(sim_bag, sensor, predictor):
+    with pytest.raises(BagError, match="complete bundle.*the reference frames need 100; .*--reference-bundles"):
+        evaluate_bag(sim_bag, sensor, predictor, reference_bundles=100)
+
+
+def test_cli_eval_json(sim_bag, model_dir, capsys):
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--json",
+                 "--reference-bundles", "5"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["reference_bundles"] == 5
+    assert summary["matched_with_ground_truth"] == summary["estimates"] >= 34
+    assert len(summary["rmse_bin_n"]) == len(summary["rmse_total_n"]) == 3
+
+
+def test_cli_eval_text(sim_bag, model_dir, capsys):
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch"]) == 0
+    out = capsys.readouterr().out
+    assert "averaged into the reference frames" in out and "bin Fz mN" in out
+
+
+def test_cli_eval_without_camera_images(tmp_path, write_bag, sensor, sim_frames, model_dir, capsys):
+    write_bag(tmp_path / "bag", sensor, sim_frames[:3], images=False)
+    assert main(["eval", str(tmp_path / "bag"), "--model", str(model_dir), "--backend", "torch"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no camera images on ['/tactile/cam0/image'" in err[0]
+
+
+@pytest.mark.parametrize("bag", ["missing", "not_a_bag"])
+def test_cli_eval_bad_bag(tmp_path, model_dir, capsys, bag):
+    (tmp_path / "not_a_bag").mkdir()
+    assert main(["eval", str(tmp_path / bag), "--model", str(model_dir), "--backend", "torch"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("tactile-bag eval: error: bag ")
+
+
+def test_cli_eval_model_of_another_sensor(sim_bag, model_dir, capsys):
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--sensor",
+                 str(__import__("tactile_description").default_sensor_path().parent / "skin_3x3.yaml")]) == 2
+    assert "give the model (--model) and the description (--sensor)" in capsys.readouterr().err
