@@ -34,7 +34,7 @@ def cmd_record(args) -> int:
     rclpy.init()
     started = time.monotonic()
     try:
-        counts = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout)
+        counts = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout, args.wait)
     finally:
         rclpy.try_shutdown()
     total = sum(counts.values())
@@ -42,6 +42,9 @@ def cmd_record(args) -> int:
     print(f"recorded {total} messages in {time.monotonic() - started:.1f} s into {args.out}: "
           + ", ".join(f"{t} {n}" for t, n in counts.items())
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
+    if not total:
+        print(f"tactile-bag record: no message within {args.wait:g} s: is the graph running, in this "
+              "ROS_DOMAIN_ID?", file=sys.stderr)
     return 0 if total else 1
 
 
@@ -51,7 +54,7 @@ def cmd_play(args) -> int:
     rclpy.init()
     started = time.monotonic()
     try:
-        counts = play(args.bag, args.rate, args.loop, args.topics, args.delay)
+        counts = play(args.bag, args.rate, args.loop, args.topics, args.wait_subscribers)
     finally:
         rclpy.try_shutdown()
     print(f"played {sum(counts.values())} messages in {time.monotonic() - started:.1f} s from {args.bag}: "
@@ -104,7 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     rec = sub.add_parser("record", help="record topics of the live graph into a new MCAP bag")
     rec.add_argument("out", help="bag directory to create (must not exist)")
-    rec.add_argument("--duration", type=float, required=True, help="seconds to record (Ctrl-C stops earlier)")
+    rec.add_argument("--duration", type=float, required=True,
+                     help="seconds to record, from the first message received (Ctrl-C stops earlier)")
+    rec.add_argument("--wait", type=float, default=10.0, metavar="S",
+                     help="give up when no message arrives within S seconds (default 10)")
     rec.add_argument("--topics", nargs="+", metavar="TOPIC",
                      help="topics to record (default: every camera's images, the bundles, the estimate and the "
                           "ground truth)")
@@ -119,8 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
     ply.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: as recorded)")
     ply.add_argument("--loop", action="store_true", help="start over at the end, until Ctrl-C")
     ply.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)")
-    ply.add_argument("--delay", type=float, default=1.0, metavar="S",
-                     help="wait after creating the publishers, for subscribers to connect (default 1)")
+    ply.add_argument("--wait-subscribers", type=float, default=1.0, metavar="S",
+                     help="wait up to S seconds for every topic to have a subscriber before the first message "
+                          "(default 1)")
     ply.set_defaults(run=cmd_play)
 
     ev = sub.add_parser("eval", help="estimate the forces of a bag offline and compare with its ground truth")

@@ -20,17 +20,18 @@ from tactile_bag.topics import absolute_topic, qos_profile
 
 
 def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequence[str] | None = None,
-         start_delay_s: float = 1.0) -> dict[str, int]:
+         wait_subscribers_s: float = 1.0) -> dict[str, int]:
     """Publish the bag's messages (or those of `topics`); returns messages published per topic.
 
-    start_delay_s: time between creating the publishers and the first message, for subscribers to discover
-    them (messages published before a subscriber has matched are lost to it, as with `ros2 bag play --delay`).
+    wait_subscribers_s: the longest wait between creating the publishers and the first message, for subscribers
+    to discover them (a message published before a subscriber has matched is lost to it); playback starts
+    sooner once every replayed topic has a matched subscriber.
     rclpy must be initialised by the caller. Ctrl-C stops the replay.
     """
     if not rate > 0:
         raise ValueError(f"--rate must be > 0, got {rate}")
-    if start_delay_s < 0:
-        raise ValueError(f"--delay must be >= 0 s, got {start_delay_s}")
+    if wait_subscribers_s < 0:
+        raise ValueError(f"--wait-subscribers must be >= 0 s, got {wait_subscribers_s}")
     with BagReader(path) as bag:
         selected = bag.require_topics([absolute_topic(t) for t in topics]) if topics else sorted(bag.topics)
         if not sum(bag.counts[t] for t in selected):
@@ -43,7 +44,9 @@ def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequen
             except MessageTypeError as exc:
                 raise BagError(f"bag {bag.path}: cannot replay: {exc}") from exc
             counts = dict.fromkeys(selected, 0)
-            time.sleep(start_delay_s)
+            wait_until = time.monotonic() + wait_subscribers_s
+            while time.monotonic() < wait_until and not all(p.get_subscription_count() for p in publishers.values()):
+                time.sleep(0.02)
             try:
                 while _play_once(bag, selected, publishers, counts, rate) and loop:
                     pass

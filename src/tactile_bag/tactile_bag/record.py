@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bag.bagfile import BagError, BagWriter
@@ -26,6 +27,7 @@ class Recorder(Node):
     def __init__(self, bag: BagWriter, topic_types: dict[str, str]):
         super().__init__("tactile_bag_recorder")
         self.bag = bag
+        self.first_arrival_s: float | None = None  # time.monotonic() of the first message
         for topic, msgtype in topic_types.items():
             bag.add_topic(topic, msgtype)
             self.create_subscription(message_class(msgtype), topic,
@@ -33,6 +35,8 @@ class Recorder(Node):
                                      qos_profile(msgtype), raw=True)
 
     def on_message(self, topic: str, msgtype: str, raw: bytes) -> None:
+        if self.first_arrival_s is None:
+            self.first_arrival_s = time.monotonic()
         self.bag.write(topic, msgtype, self.get_clock().now().nanoseconds, raw)
 
 
@@ -59,13 +63,16 @@ def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str]
 
 
 def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], duration_s: float,
-           discovery_timeout_s: float = 2.0) -> dict[str, int]:
-    """Record `topics` into the new bag `out` for `duration_s` seconds (or until Ctrl-C); messages per topic.
+           discovery_timeout_s: float = 2.0, wait_s: float = 10.0) -> dict[str, int]:
+    """Record `topics` into the new bag `out`; returns the messages per topic.
 
-    rclpy must be initialised by the caller. The bag is closed (complete and readable) however recording ends.
+    Recording lasts `duration_s` from the first message received (DDS discovery can take a second or more on a
+    loaded machine, and the graph may start after the recorder), stops earlier on SIGINT/SIGTERM, and gives up
+    when no message arrives within `wait_s`. rclpy must be initialised by the caller. The bag is closed
+    (complete and readable) however recording ends.
     """
-    if duration_s <= 0:
-        raise ValueError(f"--duration must be > 0 seconds, got {duration_s}")
+    if duration_s <= 0 or wait_s <= 0:
+        raise ValueError(f"--duration and --wait must be > 0 seconds, got {duration_s} and {wait_s}")
     out = Path(out)
     if out.exists():
         raise BagError(f"{out} already exists: name a new bag directory (a bag is never overwritten)")
@@ -82,11 +89,15 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
         raise BagError(f"cannot record: {exc}") from exc
     with BagWriter(out) as bag:
         recorder = Recorder(bag, topic_types)
+        give_up = time.monotonic() + wait_s
         try:
-            end = time.monotonic() + duration_s
-            while time.monotonic() < end:
-                rclpy.spin_once(recorder, timeout_sec=min(0.1, max(0.0, end - time.monotonic())))
-        except KeyboardInterrupt:
+            while True:
+                first = recorder.first_arrival_s
+                left_s = (first + duration_s if first is not None else give_up) - time.monotonic()
+                if left_s <= 0:
+                    break
+                rclpy.spin_once(recorder, timeout_sec=min(0.1, left_s))
+        except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM (rclpy shuts ROS down)
             pass
         finally:
             recorder.destroy_node()

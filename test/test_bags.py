@@ -1,0 +1,130 @@
+"""System test of `tactile-bag`: record the simulated graph, check the bag, replay it, evaluate it offline.
+
+Real processes over Fast DDS on loopback in a DDS domain of this test's own: the simulated cameras and the
+bundle node, the `tactile-bag` console script, and this process as the subscriber of the replay.
+"""
+
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+import torch
+from ament_index_python.packages import get_package_prefix
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import Image
+from tactile_bag.bagfile import BagReader
+
+from tactile_bringup.graph import NodeSpec
+from tactile_bringup.processes import start_node, stop_nodes
+from tactile_description import default_sensor_path, load_sensor
+from tactile_fusion.artifacts import save_model
+from tactile_fusion.model import ModelConfig
+from tactile_fusion.training import build_model
+
+pytestmark = pytest.mark.system
+RECORD_S = 4.0
+
+
+@pytest.fixture
+def ros_domain(monkeypatch):
+    """A DDS domain of this test's own (another range than test_live_graph's), shared with the child processes."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + os.getpid() % 80))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    rclpy.init()
+    node = Node("bag_test_probe")
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def tactile_bag(*args: str, timeout_s: float = 30.0) -> subprocess.CompletedProcess:
+    executable = Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"
+    return subprocess.run([str(executable), *args], capture_output=True, text=True, timeout=timeout_s)
+
+
+def spin_until(node, condition, timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+
+
+def test_record_replay_and_evaluate_the_simulated_graph(ros_domain, tmp_path):
+    config = str(default_sensor_path())
+    sensor = load_sensor(config)
+    specs = [NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_cameras", {"sensor_config": config}),
+             NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": config})]
+    processes = [start_node(spec, tmp_path / "logs") for spec in specs]
+    live = []
+    try:
+        subscription = ros_domain.create_subscription(Image, "/tactile/cam0/image", live.append,
+                                                      qos_profile_sensor_data)
+        spin_until(ros_domain, lambda: live, timeout_s=20.0)  # the graph is up once images flow
+        ros_domain.destroy_subscription(subscription)
+        assert live, "the simulated cameras never published"
+        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", str(RECORD_S))
+        unknown = tactile_bag("record", str(tmp_path / "other"), "--duration", "1", "--topics", "/tactile/nothing",
+                              "--discovery-timeout", "0.3")
+    finally:
+        codes = stop_nodes(processes)
+    logs = "\n".join(p.read_text() for p in (tmp_path / "logs").glob("*.log"))
+    assert codes == [0, 0], logs
+    assert recorded.returncode == 0, recorded.stderr + logs
+    assert recorded.stdout.startswith("recorded ") and "(nothing received on /tactile/force_distribution)" in \
+        recorded.stdout  # no fusion node in this graph
+    assert unknown.returncode == 2 and not (tmp_path / "other").exists()
+    assert unknown.stderr.strip() == ("tactile-bag record: error: unknown topic /tactile/nothing: not a topic of the "
+                                      "tactile stack and no publisher seen within 0.3 s; check the name or start its "
+                                      "publisher first")
+
+    # The bag: every default topic, the cameras at about the sensor's rate, readable images in capture order.
+    image_topics = [f"/tactile/{c}/image" for c in sensor.camera_ids]
+    with BagReader(tmp_path / "bag") as bag:
+        assert set(bag.topics) == {*image_topics, "/tactile/image_bundle", "/tactile/force_distribution",
+                                   "/tactile/ground_truth/force_distribution"}
+        # Recording starts with the first message, but DDS discovery of each publisher may take a second or more
+        # on a loaded machine, and the simulator may then run slower than its 40 Hz.
+        minimum = 0.25 * RECORD_S * sensor.frame_rate_hz
+        assert all(bag.counts[t] >= minimum for t in [*image_topics, "/tactile/image_bundle",
+                                                      "/tactile/ground_truth/force_distribution"]), str(bag.counts)
+        assert bag.counts["/tactile/force_distribution"] == 0
+        cam0 = [(t, deserialize_message(raw, Image)) for _, _, t, raw in bag.messages(["/tactile/cam0/image"])]
+    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in cam0])
+    receive_s = np.array([t for t, _ in cam0]) * 1e-9
+    assert np.all(np.diff(stamps) > 0)
+    # receive times are wall-clock times after the capture (stamps run up to 2 ms ahead: sim_camera_node's jitter)
+    assert np.all(receive_s - stamps > -0.0025) and np.median(receive_s - stamps) < 0.1
+    assert all((m.height, m.width, m.encoding, len(m.data)) == (128, 128, "mono8", 128 * 128) for _, m in cam0)
+
+    # Replay: a subscriber with the camera drivers' QoS receives the recorded images, bytes unchanged.
+    replayed = []
+    ros_domain.create_subscription(Image, "/tactile/cam0/image", replayed.append, qos_profile_sensor_data)
+    player = subprocess.Popen([str(Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"),
+                               "play", str(tmp_path / "bag"), "--rate", "2", "--topics", "/tactile/cam0/image",
+                               "--wait-subscribers", "15"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spin_until(ros_domain, lambda: player.poll() is not None, timeout_s=30.0)
+    spin_until(ros_domain, lambda: False, timeout_s=0.3)  # the last messages in flight
+    out, err = player.communicate(timeout=5)
+    assert player.returncode == 0, err
+    assert out.startswith(f"played {len(cam0)} messages")
+    assert len(replayed) >= 0.9 * len(cam0)
+    recorded_by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec): bytes(m.data) for _, m in cam0}
+    assert all(recorded_by_stamp[(m.header.stamp.sec, m.header.stamp.nanosec)] == bytes(m.data) for m in replayed)
+
+    # Offline evaluation of the live recording: every estimate finds the ground truth of its capture.
+    model = build_model(ModelConfig(conv_channels=(4, 4, 4), hidden_features=16, camera_features=8, fusion_rank=4),
+                        sensor.camera_ids, sensor.grid.rows, sensor.grid.cols, torch.tensor([1e-3, 1e-3, 1e-2]), 0)
+    save_model(model, tmp_path / "model", sensor.name)
+    evaluated = tactile_bag("eval", str(tmp_path / "bag"), "--model", str(tmp_path / "model"), "--backend", "torch",
+                            "--json")
+    assert evaluated.returncode == 0, evaluated.stderr
+    summary = json.loads(evaluated.stdout)
+    assert summary["source"] == "images" and summary["estimates"] >= minimum - 10
+    assert summary["matched_with_ground_truth"] >= summary["estimates"] - 2  # truth may lag at the bag's ends
