@@ -97,14 +97,6 @@ class BagReader:
         for connection in self._reader.connections:
             self.counts[connection.topic] += connection.msgcount
 
-    @property
-    def start_ns(self) -> int:
-        return self._reader.start_time
-
-    @property
-    def duration_s(self) -> float:
-        return self._reader.duration * 1e-9
-
     def require_topics(self, topics: Iterable[str]) -> list[str]:
         """`topics` if the bag has every one, else BagError listing what it has."""
         topics = list(topics)

@@ -47,9 +47,11 @@ def absolute_topic(name: str) -> str:
 
 
 def qos_profile(msgtype: str) -> QoSProfile:
-    """Camera images travel with sensor-data QoS (best effort) as the camera drivers publish them; the rest is
-    reliable. A best-effort subscription also receives from a reliable publisher, and a reliable subscriber of
-    images (none in this stack) would not match a best-effort replay, so images are replayed best effort too.
+    """The QoS the live graph uses for a type: sensor-data (best effort) for camera images, as the camera drivers
+    publish them and image_pipeline does; reliable for everything else.
+
+    Recording with it matches every publisher (a best-effort subscription also takes a reliable publisher's
+    messages); replaying with it gives subscribers exactly what the live graph gave them.
     """
     if msgtype == IMAGE_TYPE:
         return qos_profile_sensor_data

@@ -11,6 +11,9 @@ from tactile_bag.bagfile import BagError, BagReader
 from tactile_bag.cli import main
 from tactile_bag.evaluate import FrameReader, evaluate_bag, image_bundles, match_stamps
 
+from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.ros_time import seconds_to_time
+from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.metrics import force_metrics
 
@@ -153,6 +156,21 @@ def test_cli_eval_bad_bag(tmp_path, model_dir, capsys, bag):
 
 
 def test_cli_eval_model_of_another_sensor(sim_bag, model_dir, capsys):
-    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--sensor",
-                 str(__import__("tactile_description").default_sensor_path().parent / "skin_3x3.yaml")]) == 2
+    skin = default_sensor_path().parent / "skin_3x3.yaml"
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--sensor", str(skin)]) == 2
     assert "give the model (--model) and the description (--sensor)" in capsys.readouterr().err
+
+
+def test_unusable_images_leave_their_camera_out(sensor, sim_frames):
+    reader = FrameReader(sensor, 128)
+    stamp = seconds_to_time(1.0)
+    good = mono8_to_msg(sim_frames[0].images[0], stamp, "cam0_optical")
+    small = mono8_to_msg(np.zeros((64, 64), np.uint8), stamp, "cam1_optical")
+    bad = mono8_to_msg(sim_frames[0].images[2], stamp, "cam2_optical")
+    bad.encoding = "16UC1"
+    frame = reader.frame(1.0, ["cam0", "cam1", "cam2", "cam9"], [good, small, bad, good])
+    np.testing.assert_array_equal(frame.camera_ok, [True, False, False, False])
+    np.testing.assert_array_equal(frame.images[0], sim_frames[0].images[0])
+    assert not frame.images[1:].any()
+    assert reader.skipped == {"cam1 image of 64 x 64 pixels": 1, "unreadable image of cam2": 1,
+                              "image of unknown camera 'cam9'": 1}
