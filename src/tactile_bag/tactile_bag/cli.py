@@ -68,8 +68,9 @@ def cmd_eval(args) -> int:
 
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(args.model, args.backend)
-    truth_topic = absolute_topic(args.truth_topic)
-    result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles, truth_topic)
+    truth_topic = absolute_topic(args.truth_topic) if args.truth_topic else GROUND_TRUTH_TOPIC
+    result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
+                          truth_topic if args.truth_topic else None)
     summary = result.summary()
     if args.json:
         print(json.dumps(summary))
@@ -142,7 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--reference-bundles", type=int, default=REFERENCE_BUNDLES, metavar="N",
                     help=f"complete bundles averaged into the reference frames, as fusion_node (default "
                          f"{REFERENCE_BUNDLES})")
-    ev.add_argument("--truth-topic", default=GROUND_TRUTH_TOPIC, help=f"default {GROUND_TRUTH_TOPIC}")
+    ev.add_argument("--truth-topic", default=None,
+                    help=f"ground truth topic; it must be in the bag (default {GROUND_TRUTH_TOPIC}, if there)")
     ev.add_argument("--json", action="store_true", help="print one JSON object")
     ev.set_defaults(run=cmd_eval)
     return parser
@@ -153,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.run(args)
     except ValueError as exc:  # BagError, MessageTypeError, SensorConfigError, ModelFileError, bad arguments
-        print(f"tactile-bag {args.command}: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split())  # one line, also when a parser's message (YAML) spans several
+        print(f"tactile-bag {args.command}: error: {message}", file=sys.stderr)
         return USAGE_ERROR
 
 

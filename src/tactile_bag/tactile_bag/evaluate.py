@@ -190,12 +190,16 @@ def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFram
         yield reader.frame(time_to_seconds(msg.header.stamp), list(msg.camera_ids), list(msg.images))
 
 
-def read_ground_truth(bag: BagReader, sensor: SensorDescription,
-                      topic: str = GROUND_TRUTH_TOPIC) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (M,) in seconds and forces (M, rows, cols, 3) of the bag's ground truth (empty without any)."""
+def read_ground_truth(bag: BagReader, sensor: SensorDescription, topic: str = GROUND_TRUTH_TOPIC,
+                      required: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (M,) in seconds and forces (M, rows, cols, 3) of the bag's ground truth.
+
+    A bag without the topic has no ground truth (empty arrays), or is an error when it is `required`.
+    """
     rows, cols = sensor.grid.rows, sensor.grid.cols
-    if topic not in bag.topics:
+    if topic not in bag.topics and not required:
         return np.zeros(0), np.zeros((0, rows, cols, 3), np.float32)
+    bag.require_topics([topic])
     if bag.topics[topic] != FORCES_TYPE:
         raise BagError(f"bag {bag.path}: {topic} holds {bag.topics[topic]}, expected {FORCES_TYPE}")
     stamps, forces = [], []
@@ -241,15 +245,19 @@ def check_predictor(predictor: ForcePredictor, sensor: SensorDescription) -> Non
 
 
 def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePredictor, source: str = "auto",
-                 reference_bundles: int = REFERENCE_BUNDLES, truth_topic: str = GROUND_TRUTH_TOPIC,
+                 reference_bundles: int = REFERENCE_BUNDLES, truth_topic: str | None = None,
                  match_tolerance_s: float = MATCH_TOLERANCE_S) -> BagEvaluation:
-    """Estimate the force of every bundle of the bag after the reference ones and match the ground truth."""
+    """Estimate the force of every bundle of the bag after the reference ones and match the ground truth.
+
+    truth_topic: None for the simulator's (optional in the bag); a topic named here must be in the bag.
+    """
     if reference_bundles < 1:
         raise ValueError(f"reference_bundles must be >= 1, got {reference_bundles}")
     check_predictor(predictor, sensor)
     with BagReader(path) as bag:
         source = choose_source(bag, sensor, source)
-        truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic)
+        truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic or GROUND_TRUTH_TOPIC,
+                                                required=truth_topic is not None)
         reader = FrameReader(sensor, predictor.image_size)
         frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
         reference_sum = np.zeros((sensor.n_cameras, *reader.shape), np.float64)

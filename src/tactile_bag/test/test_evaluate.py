@@ -174,3 +174,9 @@ def test_unusable_images_leave_their_camera_out(sensor, sim_frames):
     assert not frame.images[1:].any()
     assert reader.skipped == {"cam1 image of 64 x 64 pixels": 1, "unreadable image of cam2": 1,
                               "image of unknown camera 'cam9'": 1}
+
+
+def test_a_named_truth_topic_must_be_in_the_bag(sim_bag, model_dir, capsys):
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--truth-topic",
+                 "/tactile/truth"]) == 2
+    assert "has no topic /tactile/truth; its topics are" in capsys.readouterr().err
