@@ -19,6 +19,8 @@ from pathlib import Path
 import rclpy
 
 from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, evaluate_bag
+from tactile_bag.play import play
+from tactile_bag.record import record
 from tactile_bag.topics import GROUND_TRUTH_TOPIC, absolute_topic, default_record_topics, stack_topics
 from tactile_description import load_sensor
 from tactile_fusion.metrics import metrics_table
@@ -27,8 +29,6 @@ USAGE_ERROR = 2
 
 
 def cmd_record(args) -> int:
-    from tactile_bag.record import record
-
     sensor = load_sensor(args.sensor)
     topics = args.topics or default_record_topics(sensor)
     rclpy.init()
@@ -49,8 +49,6 @@ def cmd_record(args) -> int:
 
 
 def cmd_play(args) -> int:
-    from tactile_bag.play import play
-
     rclpy.init()
     started = time.monotonic()
     try:
