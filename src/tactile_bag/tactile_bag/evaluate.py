@@ -28,11 +28,11 @@ from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagError, BagReader
 from tactile_bag.topics import BUNDLE_TOPIC, BUNDLE_TYPE, FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
-from tactile_conversions.images import ImageMessageError, msg_to_array
+from tactile_conversions.images import frame_from_images
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import SensorDescription
-from tactile_description.imaging import FrameError, to_mono8
-from tactile_fusion.approximate_sync import ApproximateTimeSync
+from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames, check_model_fits
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
@@ -42,8 +42,6 @@ if TYPE_CHECKING:  # the model stack (torch, onnxruntime) takes seconds to impor
 SOURCES = ("auto", "images", "bundles")
 #: Largest distance between an estimate's stamp and its ground truth's (the sensor's frames are 25 ms apart).
 MATCH_TOLERANCE_S = 0.010
-#: fusion_node's default `reference_bundles`.
-REFERENCE_BUNDLES = 10
 
 
 @dataclass
@@ -150,30 +148,16 @@ class FrameReader:
         self.skipped[reason] = self.skipped.get(reason, 0) + 1
 
     def frame(self, stamp_s: float, camera_ids, images: list[Image]) -> BundleFrame:
-        frame = np.zeros((len(self.camera_ids), *self.shape), np.uint8)
-        ok = np.zeros(len(self.camera_ids), bool)
-        for camera_id, msg in zip(camera_ids, images, strict=False):
-            if camera_id not in self.camera_ids:
-                self.skip(f"image of unknown camera {camera_id!r}")
-                continue
-            try:
-                image = to_mono8(msg_to_array(msg, camera_id), camera_id)
-            except (ImageMessageError, FrameError):
-                self.skip(f"unreadable image of {camera_id}")
-                continue
-            if image.shape != self.shape:
-                self.skip(f"{camera_id} image of {image.shape[1]} x {image.shape[0]} pixels")
-                continue
-            i = self.camera_ids.index(camera_id)
-            frame[i], ok[i] = image, True
-        return BundleFrame(stamp_s, frame, ok)
+        frame, camera_ok, problems = frame_from_images(camera_ids, images, self.camera_ids, self.shape)
+        for reason, _ in problems:
+            self.skip(reason)
+        return BundleFrame(stamp_s, frame, camera_ok)
 
 
 def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader) -> Iterator[BundleFrame]:
     """The camera images bundled as bundle_node bundles them (same synchroniser, same default settings)."""
-    period_s = 1.0 / sensor.frame_rate_hz
-    sync: ApproximateTimeSync[Image] = ApproximateTimeSync(sensor.camera_ids, queue_size=10,
-                                                           max_spread_s=0.5 * period_s, min_period_s=0.5 * period_s)
+    sync: ApproximateTimeSync[Image] = ApproximateTimeSync(sensor.camera_ids,
+                                                           **camera_sync_settings(sensor.frame_rate_hz))
     cameras = {camera_topic(c): c for c in sensor.camera_ids}
     for topic, _, time_ns, raw in bag.messages(list(cameras)):
         msg = deserialize(raw, Image, topic, time_ns)
@@ -236,12 +220,10 @@ def match_stamps(stamps_s: np.ndarray, truth_stamps_s: np.ndarray, tolerance_s: 
 
 
 def check_predictor(predictor: ForcePredictor, sensor: SensorDescription) -> None:
-    if sorted(predictor.camera_ids) != sorted(sensor.camera_ids) or \
-            (predictor.rows, predictor.cols) != (sensor.grid.rows, sensor.grid.cols):
-        raise BagError(f"the model is for cameras {list(predictor.camera_ids)} and {predictor.rows} x "
-                       f"{predictor.cols} bins, the sensor description {sensor.source or sensor.name} has cameras "
-                       f"{list(sensor.camera_ids)} and {sensor.grid.rows} x {sensor.grid.cols} bins: give the "
-                       "model (--model) and the description (--sensor) of the sensor that recorded the bag")
+    try:
+        check_model_fits(predictor, sensor)
+    except ValueError as exc:
+        raise BagError(f"{exc} (--model, --sensor)") from exc
 
 
 def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePredictor, source: str = "auto",
@@ -251,8 +233,6 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
 
     truth_topic: None for the simulator's (optional in the bag); a topic named here must be in the bag.
     """
-    if reference_bundles < 1:
-        raise ValueError(f"reference_bundles must be >= 1, got {reference_bundles}")
     check_predictor(predictor, sensor)
     with BagReader(path) as bag:
         source = choose_source(bag, sensor, source)
@@ -260,29 +240,24 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
                                                 required=truth_topic is not None)
         reader = FrameReader(sensor, predictor.image_size)
         frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
-        reference_sum = np.zeros((sensor.n_cameras, *reader.shape), np.float64)
-        reference_count, bundles = 0, 0
-        reference = None
+        reference = ReferenceFrames(sensor.n_cameras, reader.shape, reference_bundles)
+        bundles = 0
         stamps, estimates, camera_ok = [], [], []
         for frame in frames:
             bundles += 1
-            if reference is None:
-                if frame.camera_ok.all():
-                    reference_sum += frame.images
-                    reference_count += 1
-                    if reference_count == reference_bundles:
-                        reference = np.rint(reference_sum / reference_count).astype(np.uint8)
+            if reference.images is None:
+                reference.add(frame.images, frame.camera_ok)
                 continue
             if not frame.camera_ok.any():
                 reader.skip("bundle without any usable image")
                 continue
-            estimates.append(predictor.predict(frame.images, reference, camera_ids=sensor.camera_ids,
+            estimates.append(predictor.predict(frame.images, reference.images, camera_ids=sensor.camera_ids,
                                                camera_ok=frame.camera_ok))
             stamps.append(frame.stamp_s)
             camera_ok.append(frame.camera_ok)
-    if reference is None:
-        raise BagError(f"bag {path}: only {reference_count} complete bundle(s) of {bundles}, the reference frames "
-                       f"need {reference_bundles}; record longer at rest first, or lower --reference-bundles")
+    if reference.images is None:
+        raise BagError(f"bag {path}: only {reference.frames_taken} complete bundle(s) of {bundles}, the reference "
+                       f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles")
     stamps_s = np.asarray(stamps, dtype=np.float64)
     return BagEvaluation(
         bag=str(path), source=source, camera_ids=sensor.camera_ids, bundles=bundles,

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 from rclpy.serialization import serialize_message
+
 from tactile_bag.bagfile import BagWriter
 from tactile_bag.topics import BUNDLE_TOPIC, BUNDLE_TYPE, FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
-
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time

@@ -8,10 +8,10 @@ import pytest
 from ament_index_python.packages import get_package_share_directory
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
+
 from tactile_bag.bagfile import BagError, BagReader, BagWriter
 from tactile_bag.message_types import MessageTypeError, bag_typestore, message_class
 from tactile_bag.topics import FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
-
 from tactile_msgs.msg import ForceDistribution
 
 

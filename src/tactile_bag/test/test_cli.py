@@ -3,6 +3,7 @@
 import os
 
 import pytest
+
 from tactile_bag.cli import main
 
 

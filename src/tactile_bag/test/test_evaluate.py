@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from tactile_bag.bagfile import BagError, BagReader
 from tactile_bag.cli import main
 from tactile_bag.evaluate import FrameReader, evaluate_bag, image_bundles, match_stamps
-
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_description import default_sensor_path
@@ -158,7 +158,7 @@ def test_cli_eval_bad_bag(tmp_path, model_dir, capsys, bag):
 def test_cli_eval_model_of_another_sensor(sim_bag, model_dir, capsys):
     skin = default_sensor_path().parent / "skin_3x3.yaml"
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--sensor", str(skin)]) == 2
-    assert "give the model (--model) and the description (--sensor)" in capsys.readouterr().err
+    assert "use the model and the sensor description of the same sensor (--model, --sensor)" in capsys.readouterr().err
 
 
 def test_unusable_images_leave_their_camera_out(sensor, sim_frames):

@@ -7,10 +7,14 @@ step or encoding does not match its data is rejected with an error naming the ca
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
+
+from tactile_description.imaging import FrameError, to_mono8
 
 #: Encodings we accept, with their channel count. Colour images are converted to mono by the consumer.
 CHANNELS = {"mono8": 1, "8UC1": 1, "bgr8": 3, "rgb8": 3}
@@ -50,3 +54,31 @@ def msg_to_array(msg: Image, camera_id: str) -> np.ndarray:
         return rows
     pixels = rows.reshape(msg.height, msg.width, 3)
     return pixels[:, :, ::-1] if msg.encoding == "rgb8" else pixels  # always hand out BGR, OpenCV's order
+
+
+def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor_camera_ids: Sequence[str],
+                      image_shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str]]]:
+    """One bundle's image messages as a model frame, in the sensor's camera order.
+
+    Returns the (C, H, W) uint8 frame (black where a camera gave nothing usable), camera_ok (C,) and, for each
+    image that could not be used, (reason, detail): an unknown camera, an unreadable message, a wrong size.
+    """
+    frame = np.zeros((len(sensor_camera_ids), *image_shape), np.uint8)
+    camera_ok = np.zeros(len(sensor_camera_ids), bool)
+    problems = []
+    for camera_id, msg in zip(camera_ids, images, strict=True):
+        if camera_id not in sensor_camera_ids:
+            problems.append((f"image of unknown camera {camera_id!r}", f"expected one of {list(sensor_camera_ids)}"))
+            continue
+        try:
+            image = to_mono8(msg_to_array(msg, camera_id), camera_id)
+        except (ImageMessageError, FrameError) as exc:
+            problems.append((f"unreadable image of {camera_id}", str(exc)))
+            continue
+        if image.shape != image_shape:
+            problems.append((f"{camera_id} image of {image.shape[1]} x {image.shape[0]} pixels",
+                             f"the model needs {image_shape[1]} x {image_shape[0]}"))
+            continue
+        i = list(sensor_camera_ids).index(camera_id)
+        frame[i], camera_ok[i] = image, True
+    return frame, camera_ok, problems

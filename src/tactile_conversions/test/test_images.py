@@ -3,7 +3,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 
-from tactile_conversions.images import ImageMessageError, mono8_to_msg, msg_to_array
+from tactile_conversions.images import ImageMessageError, frame_from_images, mono8_to_msg, msg_to_array
 
 
 def test_mono8_roundtrip_keeps_pixels_stamp_and_frame():
@@ -42,3 +42,17 @@ def test_inconsistent_messages_are_rejected_naming_the_camera(fields, data, mess
 def test_only_2d_uint8_images_are_published():
     with pytest.raises(ImageMessageError, match="expected a \\(H, W\\) uint8 image"):
         mono8_to_msg(np.zeros((4, 4), np.float32), Time(), "cam0")
+
+
+def test_bundle_images_become_a_frame_in_the_sensor_order():
+    cams = ("cam0", "cam1", "cam2")
+    good = mono8_to_msg(np.full((4, 4), 7, np.uint8), Time(), "cam2_optical")
+    small = mono8_to_msg(np.zeros((2, 2), np.uint8), Time(), "cam0_optical")
+    broken = Image(height=4, width=4, encoding="mono8", step=4)
+    broken.data = bytes(3)
+    frame, ok, problems = frame_from_images(["cam2", "cam0", "cam1", "cam9"], [good, small, broken, good], cams,
+                                            (4, 4))
+    assert frame.shape == (3, 4, 4) and np.all(frame[2] == 7) and np.all(frame[:2] == 0)
+    assert ok.tolist() == [False, False, True]
+    assert [reason for reason, _ in problems] == ["cam0 image of 2 x 2 pixels", "unreadable image of cam1",
+                                                  "image of unknown camera 'cam9'"]

@@ -25,6 +25,13 @@ from typing import Any, Generic, TypeVar
 Item = TypeVar("Item")
 
 
+def camera_sync_settings(frame_rate_hz: float) -> dict[str, float | int]:
+    """The default settings for cameras at `frame_rate_hz`: half a frame period for the spread and the period
+    bound (a tighter spread would split jittered frames, a looser one could pair neighbouring frames)."""
+    half_period_s = 0.5 / frame_rate_hz
+    return {"queue_size": 10, "max_spread_s": half_period_s, "min_period_s": half_period_s}
+
+
 @dataclass
 class Bundle(Generic[Item]):
     """One synchronised set: `items[i]` and `stamps[i]` belong to stream `stream_ids[i]`."""

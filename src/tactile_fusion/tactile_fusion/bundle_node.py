@@ -18,7 +18,7 @@ from std_msgs.msg import Header
 from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_description import load_sensor
-from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle
+from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, camera_sync_settings
 from tactile_msgs.msg import ImageBundle
 
 
@@ -27,11 +27,11 @@ class BundleNode(Node):
         super().__init__("tactile_bundle")
         sensor_config = self.declare_parameter("sensor_config", "").value
         self.sensor = load_sensor(sensor_config or None)
-        period = 1.0 / self.sensor.frame_rate_hz
-        self.max_spread_s = float(self.declare_parameter("max_spread_s", 0.5 * period).value)
-        self.queue_size = int(self.declare_parameter("queue_size", 10).value)
-        self.min_period_s = float(self.declare_parameter("min_period_s", 0.5 * period).value)
-        self.camera_timeout_s = float(self.declare_parameter("camera_timeout_s", 10 * period).value)
+        defaults = camera_sync_settings(self.sensor.frame_rate_hz)
+        self.max_spread_s = float(self.declare_parameter("max_spread_s", defaults["max_spread_s"]).value)
+        self.queue_size = int(self.declare_parameter("queue_size", defaults["queue_size"]).value)
+        self.min_period_s = float(self.declare_parameter("min_period_s", defaults["min_period_s"]).value)
+        self.camera_timeout_s = float(self.declare_parameter("camera_timeout_s", 10 / self.sensor.frame_rate_hz).value)
         if self.max_spread_s <= 0 or self.queue_size < 1 or self.min_period_s < 0 or self.camera_timeout_s <= 0:
             raise ValueError("tactile_bundle: max_spread_s and camera_timeout_s must be > 0, queue_size >= 1, "
                              "min_period_s >= 0")

@@ -8,24 +8,24 @@ Reference frames: the model sees each camera's difference to a frame taken at re
 `~/capture_reference` service, std_srvs/Trigger) the node averages the next `reference_bundles` complete
 bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them.
 
-Degraded input: a camera missing from a bundle, or whose image is unreadable, is replaced by its reference
-frame (the model sees "no contact" there), and the estimate lists it in `missing_camera_ids`.
+Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
+(which shows the model its reference frame there: "no contact"), and the estimate lists it in
+`missing_camera_ids`.
 """
 
 from __future__ import annotations
 
-import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
-from tactile_conversions.images import ImageMessageError, msg_to_array
+from tactile_conversions.images import frame_from_images
 from tactile_conversions.node_main import run_node
 from tactile_description import load_sensor
-from tactile_description.imaging import to_mono8
 from tactile_fusion.inference import InputError, load_predictor
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames, check_model_fits
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 
@@ -37,83 +37,45 @@ class FusionNode(Node):
         backend = self.declare_parameter("backend", "onnxruntime").value
         precision = self.declare_parameter("precision", "fp32").value
         threads = int(self.declare_parameter("threads", 1).value)
-        self.reference_bundles = int(self.declare_parameter("reference_bundles", 10).value)
+        reference_bundles = int(self.declare_parameter("reference_bundles", REFERENCE_BUNDLES).value)
         self.publish_markers = bool(self.declare_parameter("publish_markers", True).value)
-        if self.reference_bundles < 1:
-            raise ValueError(f"reference_bundles must be >= 1, got {self.reference_bundles}")
         self.sensor = load_sensor(sensor_config or None)
         self.predictor = load_predictor(model_dir or None, backend, precision, threads)
-        if tuple(self.predictor.camera_ids) != self.sensor.camera_ids:
-            raise ValueError(f"the model was trained for cameras {list(self.predictor.camera_ids)}, the sensor "
-                             f"description has {list(self.sensor.camera_ids)}")
-        if (self.predictor.rows, self.predictor.cols) != (self.sensor.grid.rows, self.sensor.grid.cols):
-            raise ValueError(f"the model predicts {self.predictor.rows} x {self.predictor.cols} bins, the sensor "
-                             f"description has {self.sensor.grid.rows} x {self.sensor.grid.cols}")
-        size = self.predictor.image_size
-        self.image_shape = (size, size)
-        self.reference: np.ndarray | None = None
-        self._reference_sum = np.zeros((self.sensor.n_cameras, size, size), np.float64)
-        self._reference_count = 0
+        check_model_fits(self.predictor, self.sensor)
+        self.image_shape = (self.predictor.image_size, self.predictor.image_size)
+        self.reference = ReferenceFrames(self.sensor.n_cameras, self.image_shape, reference_bundles)
         self.forces_pub = self.create_publisher(ForceDistribution, "/tactile/force_distribution", 10)
         self.wrench_pub = self.create_publisher(WrenchStamped, "/tactile/wrench", 10)
         self.markers_pub = self.create_publisher(MarkerArray, "/tactile/force_markers", 10)
         self.create_subscription(ImageBundle, "/tactile/image_bundle", self.on_bundle, 10)
         self.create_service(Trigger, "~/capture_reference", self.on_capture_reference)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
-                               f"the reference from the next {self.reference_bundles} bundles: do not touch")
+                               f"the reference from the next {reference_bundles} bundles: do not touch")
 
     def on_capture_reference(self, _request, response):
-        self.reference = None
-        self._reference_sum[:] = 0
-        self._reference_count = 0
+        self.reference.reset()
         response.success = True
-        response.message = f"capturing the reference from the next {self.reference_bundles} complete bundles"
+        response.message = f"capturing the reference from the next {self.reference.count} complete bundles"
         return response
 
-    def read_images(self, bundle: ImageBundle) -> tuple[np.ndarray, list[str]]:
-        """The bundle's images in the sensor's camera order, and the cameras that gave no usable image."""
-        images = np.zeros((self.sensor.n_cameras, *self.image_shape), np.uint8)
-        present = set()
-        for camera_id, msg in zip(bundle.camera_ids, bundle.images, strict=False):
-            if camera_id not in self.sensor.camera_ids:
-                self.get_logger().warning(f"bundle holds an image of unknown camera {camera_id!r}: ignored",
-                                          throttle_duration_sec=5.0)
-                continue
-            try:
-                image = to_mono8(msg_to_array(msg, camera_id), camera_id)
-            except (ImageMessageError, ValueError) as exc:
-                self.get_logger().error(f"unusable image: {exc}", throttle_duration_sec=5.0)
-                continue
-            if image.shape != self.image_shape:
-                self.get_logger().error(f"{camera_id}: image is {image.shape[1]} x {image.shape[0]}, the model "
-                                        f"needs {self.image_shape[1]} x {self.image_shape[0]}",
-                                        throttle_duration_sec=5.0)
-                continue
-            images[self.sensor.camera_ids.index(camera_id)] = image
-            present.add(camera_id)
-        return images, [c for c in self.sensor.camera_ids if c not in present]
-
     def on_bundle(self, bundle: ImageBundle) -> None:
-        images, missing = self.read_images(bundle)
-        if self.reference is None:
-            if not missing:
-                self._reference_sum += images
-                self._reference_count += 1
-                if self._reference_count == self.reference_bundles:
-                    self.reference = np.rint(self._reference_sum / self._reference_count).astype(np.uint8)
-                    self.get_logger().info("reference frames captured: publishing forces")
+        images, camera_ok, problems = frame_from_images(bundle.camera_ids, bundle.images, self.sensor.camera_ids,
+                                                        self.image_shape)
+        for reason, detail in problems:
+            self.get_logger().error(f"{reason}: {detail}", throttle_duration_sec=5.0)
+        if self.reference.images is None:
+            if self.reference.add(images, camera_ok):
+                self.get_logger().info("reference frames captured: publishing forces")
             return
-        if len(missing) == self.sensor.n_cameras:
+        if not camera_ok.any():
             return
-        for camera_id in missing:
-            i = self.sensor.camera_ids.index(camera_id)
-            images[i] = self.reference[i]
         try:
-            forces = self.predictor.predict(images, self.reference)
+            forces = self.predictor.predict(images, self.reference.images, camera_ok=camera_ok)
         except (InputError, FloatingPointError) as exc:
             self.get_logger().error(f"no estimate for this bundle: {exc}", throttle_duration_sec=5.0)
             return
-        present = [c for c in self.sensor.camera_ids if c not in missing]
+        present = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if ok]
+        missing = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if not ok]
         distribution = force_distribution_msg(forces, self.sensor.grid, bundle.header.stamp, self.sensor.frame_id,
                                               present, missing)
         self.forces_pub.publish(distribution)

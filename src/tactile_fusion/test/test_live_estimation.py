@@ -1,0 +1,46 @@
+import numpy as np
+import pytest
+
+from tactile_description import load_sensor
+from tactile_fusion.inference import TorchPredictor
+from tactile_fusion.live_estimation import ReferenceFrames, check_model_fits
+from tactile_fusion.model import ForceFusionNet, ModelConfig
+
+
+def test_reference_is_the_rounded_mean_of_complete_frames():
+    reference = ReferenceFrames(2, (2, 2), count=2)
+    ok = np.array([True, True])
+    assert not reference.add(np.full((2, 2, 2), 10, np.uint8), ok)
+    assert reference.images is None
+    assert not reference.add(np.full((2, 2, 2), 99, np.uint8), np.array([True, False]))  # incomplete: ignored
+    assert reference.add(np.full((2, 2, 2), 13, np.uint8), ok)
+    assert reference.images.dtype == np.uint8 and np.all(reference.images == 12)  # (10 + 13) / 2 = 11.5 -> 12
+    assert not reference.add(np.zeros((2, 2, 2), np.uint8), ok)  # complete: later frames change nothing
+    assert np.all(reference.images == 12)
+
+
+def test_reset_takes_the_reference_again():
+    reference = ReferenceFrames(1, (1, 1), count=1)
+    reference.add(np.full((1, 1, 1), 5, np.uint8), np.array([True]))
+    reference.reset()
+    assert reference.images is None and reference.frames_taken == 0
+    reference.add(np.full((1, 1, 1), 7, np.uint8), np.array([True]))
+    assert reference.images[0, 0, 0] == 7
+
+
+def test_a_reference_needs_a_frame():
+    with pytest.raises(ValueError, match="at least one frame"):
+        ReferenceFrames(4, (128, 128), count=0)
+
+
+def predictor(camera_ids, rows, cols):
+    return TorchPredictor(ForceFusionNet(ModelConfig(), camera_ids, rows, cols))
+
+
+def test_model_must_fit_the_sensor():
+    sensor = load_sensor()
+    check_model_fits(predictor(sensor.camera_ids[::-1], 26, 25), sensor)  # order does not matter
+    with pytest.raises(ValueError, match="the model is for cameras"):
+        check_model_fits(predictor(sensor.camera_ids[:3], 26, 25), sensor)
+    with pytest.raises(ValueError, match="26 x 25 bins"):
+        check_model_fits(predictor(sensor.camera_ids, 25, 25), sensor)
