@@ -1,0 +1,240 @@
+"""`tactile-fusion`: train, evaluate, recalibrate, export and benchmark the force-distribution model.
+
+    tactile-fusion train --out DIR [--scene paper_grid | --dataset DIR] [--frames N] [--epochs N] ...
+    tactile-fusion eval [--model DIR] [--backend onnxruntime|torch] [--precision fp32|int8|fp16]
+                        [--scene NAME | --dataset DIR] [--hard-cases] [--out DIR] [--json]
+    tactile-fusion recalibrate --out DIR [--add-camera ID] [--fractions 0.1,0.2,...] [training options]
+    tactile-fusion export [--model DIR]
+    tactile-fusion bench [--model DIR] [--runs N] [--json]
+
+Without --model, eval, export and bench use the shipped model (models/default); without --scene or --dataset,
+eval uses the default test set: the held-out 20 % of the default scene, simulated again from its seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import torch
+
+from tactile_description import SensorConfigError, load_sensor
+from tactile_fusion.artifacts import ModelFileError, check_model_fits_sensor, default_model_dir, read_model_json
+from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
+from tactile_fusion.inference import BACKENDS, InputError, load_predictor
+from tactile_fusion.metrics import metrics_table
+from tactile_fusion.model import ModelConfig
+from tactile_fusion.training import TrainConfig
+from tactile_sim import DatasetError, SceneError
+
+
+def _threads(args) -> None:
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+
+
+def _model_config(args) -> ModelConfig:
+    default = ModelConfig()
+    channels = tuple(int(c) for c in args.conv_channels.split(",")) if args.conv_channels else default.conv_channels
+    return ModelConfig(image_size=args.image_size, conv_channels=channels, hidden_features=args.hidden_features,
+                       camera_features=args.camera_features, fusion_rank=args.fusion_rank or None)
+
+
+def _train_config(args) -> TrainConfig:
+    return TrainConfig(max_epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
+                       patience=args.patience, seed=args.seed, head_epochs=args.head_epochs)
+
+
+def cmd_train(args) -> int:
+    from tactile_fusion.pipeline import train_and_export, training_frames
+
+    _threads(args)
+    sensor = load_sensor(args.sensor)
+    args.image_size = sensor.cameras[0].output_size[0]
+    frames = training_frames(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
+    source = f"dataset {args.dataset}" if args.dataset else f"scene {args.scene}"
+    metrics = train_and_export(sensor, frames, _model_config(args), _train_config(args), args.out, args.resume,
+                               progress=not args.quiet, threads=args.threads, data_source=source)
+    print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
+    print(f"model written to {args.out}")
+    return 0
+
+
+def _eval_sets(args, sensor) -> list[tuple[str, object]]:
+    from tactile_fusion.pipeline import DEFAULT_SCENE, HARD_CASE_SCENES, scene_frames
+
+    progress = not (args.json or args.quiet)
+    if args.dataset:
+        sets = [(f"dataset {Path(args.dataset).name}", load_dataset_frames(args.dataset, sensor))]
+    elif args.scene:
+        sets = [(f"{args.scene} (all)", scene_frames(sensor, args.scene, frames=args.frames, progress=progress))]
+    else:
+        sets = [(f"{DEFAULT_SCENE} test split", scene_frames(sensor, DEFAULT_SCENE, "test", args.frames, progress))]
+    if args.hard_cases:
+        sets += [(name, scene_frames(sensor, name, frames=args.frames, progress=progress))
+                 for name in HARD_CASE_SCENES]
+    return sets
+
+
+def cmd_eval(args) -> int:
+    from tactile_fusion.artifacts import write_json
+    from tactile_fusion.evaluation import evaluate
+    from tactile_fusion.plots import plot_fz_maps
+
+    model_dir = Path(args.model) if args.model else default_model_dir()
+    sensor = load_sensor(args.sensor)
+    check_model_fits_sensor(read_model_json(model_dir), sensor, model_dir)
+    predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
+    results = {}
+    for name, frames in _eval_sets(args, sensor):
+        metrics, predicted = evaluate(predictor, frames)
+        results[name] = metrics
+        if args.out:
+            slug = name.replace(" ", "_").replace("(", "").replace(")", "")
+            plot_fz_maps(frames.bin_forces_n, predicted, Path(args.out) / f"fz_map_{slug}.png",
+                         f"{name}: Fz per bin ({args.backend} {args.precision})")
+    first = next(iter(results.values()))
+    report = {"rmse_bin_n": first["rmse_bin_n"], "rmse_total_n": first["rmse_total_n"],
+              "model": str(model_dir), "backend": args.backend, "precision": args.precision, "data_sets": results}
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        write_json(Path(args.out) / "metrics.json", report)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(metrics_table(results))
+    return 0
+
+
+def cmd_recalibrate(args) -> int:
+    from tactile_fusion.study import run_recalibration_study
+
+    _threads(args)
+    sensor = load_sensor(args.sensor)
+    args.image_size = sensor.cameras[0].output_size[0]
+    fractions = [float(f) for f in args.fractions.split(",")]
+    report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, args.add_camera, fractions,
+                                     _model_config(args), _train_config(args), Path(args.out),
+                                     progress=not (args.json or args.quiet))
+    if args.json:
+        print(json.dumps(report))
+    else:
+        print(metrics_table({"full training": report["full_training"]["metrics"]}
+                            | {f"recalibrated {100 * r['fraction']:.0f} %": r["metrics"]
+                               for r in report["recalibration"]}))
+        print(f"full training {report['full_training']['wall_time_s']:.1f} s, recalibration with all data "
+              f"{report['recalibration'][-1]['wall_time_s']:.1f} s: {report['speedup_full_data']:.1f}x faster; "
+              f"written to {args.out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from tactile_fusion.pipeline import CALIBRATION_FRAMES, DEFAULT_SCENE, export_model_dir, scene_frames
+
+    model_dir = Path(args.model) if args.model else default_model_dir()
+    sensor = load_sensor(args.sensor)
+    check_model_fits_sensor(read_model_json(model_dir), sensor, model_dir)
+    calibration = scene_frames(sensor, DEFAULT_SCENE, "train", CALIBRATION_FRAMES)
+    for precision, path in export_model_dir(model_dir, calibration).items():
+        print(f"{precision}: {path}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from tactile_fusion.bench import benchmark
+
+    report = benchmark(args.model, runs=args.runs, threads=args.threads)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for name, entry in report["backends"].items():
+            print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
+                  f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']})")
+    return 0
+
+
+def _training_options(parser: argparse.ArgumentParser) -> None:
+    model, train = ModelConfig(), TrainConfig()
+    parser.add_argument("--scene", default="paper_grid", help="scene name or YAML file to simulate (default "
+                        "%(default)s)")
+    parser.add_argument("--dataset", help="train on a dataset written by `tactile-sim generate` instead")
+    parser.add_argument("--frames", type=int, help="use only the first N frames of the scene or dataset")
+    parser.add_argument("--epochs", type=int, default=train.max_epochs, help="at most this many end-to-end epochs")
+    parser.add_argument("--head-epochs", type=int, default=train.head_epochs,
+                        help="then at most this many epochs of the head alone on cached conv features")
+    parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per step")
+    parser.add_argument("--learning-rate", type=float, default=train.learning_rate)
+    parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
+    parser.add_argument("--seed", type=int, default=train.seed)
+    parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "
+                        f"{','.join(map(str, model.conv_channels))})")
+    parser.add_argument("--hidden-features", type=int, default=model.hidden_features)
+    parser.add_argument("--camera-features", type=int, default=model.camera_features)
+    parser.add_argument("--fusion-rank", type=int, default=model.fusion_rank, help="0: dense fusion matrix")
+    parser.add_argument("--out", required=True, help="output directory")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tactile-fusion", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p, with_model: bool):
+        p.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
+        p.add_argument("--threads", type=int, default=1, help="CPU threads (default %(default)s)")
+        p.add_argument("--quiet", action="store_true", help="no progress bars")
+        if with_model:
+            p.add_argument("--model", help="model directory (default: the shipped model)")
+
+    p = sub.add_parser("train", help="train a model from the simulator or a dataset, export it, evaluate it")
+    common(p, False)
+    _training_options(p)
+    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("eval", help="RMSE per bin and on the total force, per component")
+    common(p, True)
+    p.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
+    p.add_argument("--precision", choices=["fp32", "int8", "fp16"], default="fp32")
+    p.add_argument("--scene", help="evaluate on every frame of this scene (name or YAML file)")
+    p.add_argument("--dataset", help="evaluate on every frame of this dataset")
+    p.add_argument("--frames", type=int, help="only the first N frames")
+    p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
+    p.add_argument("--out", help="write metrics.json and Fz map PNGs here")
+    p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("recalibrate", help="train with all cameras but one, add it by retraining the last layers; "
+                       "sweep the data fraction")
+    common(p, False)
+    _training_options(p)
+    p.add_argument("--add-camera", help="the camera to add (default: the sensor's last camera)")
+    p.add_argument("--fractions", default="0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0",
+                   help="fractions of the training data for recalibration (default %(default)s)")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    p.set_defaults(func=cmd_recalibrate)
+
+    p = sub.add_parser("export", help="write the ONNX graphs (fp32, fp16, int8) of a model directory")
+    common(p, True)
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("bench", help="milliseconds per frame of every backend and precision, batch of one")
+    common(p, True)
+    p.add_argument("--runs", type=int, default=300, help="timed runs per backend (default %(default)s)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, SceneError, InputError) as exc:
+        print(f"tactile-fusion {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""Export to ONNX: the float32 graph, an int8-quantized variant (last layer kept in float) and a float16 graph.
+
+Every graph has the same interface as the model's `forward`:
+  images    (B, C, H, W) uint8   current frames, cameras in the model's camera_ids order
+  reference (C, H, W)    uint8   the cameras' no-contact frames
+  bin_forces_n (B, rows, cols, 3) float32 newtons
+The uint8 -> float conversion and the difference are inside the graph, so no caller can get the wrap-around
+of uint8 differences wrong.
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+from tactile_fusion.model import ForceFusionNet
+
+#: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
+OPSET = 17
+INPUT_NAMES = ("images", "reference")
+OUTPUT_NAME = "bin_forces_n"
+
+
+class _Float16Graph(nn.Module):
+    """The model computed in float16 from the difference image on; uint8 in, float32 newtons out."""
+
+    def __init__(self, model: ForceFusionNet):
+        super().__init__()
+        self.model = copy_to_half(model)
+
+    def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+        difference = (images.to(torch.float16) - reference.to(torch.float16)) / 255.0
+        return (self.model.forward_normalised(difference) * self.model.force_scale_n).to(torch.float32)
+
+
+def copy_to_half(model: ForceFusionNet) -> ForceFusionNet:
+    """A float16 copy of `model` in evaluation mode (the original is untouched)."""
+    return copy.deepcopy(model).eval().half()
+
+
+def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32") -> Path:
+    """Write `model` as an ONNX graph (precision "fp32" or "fp16") and check it with onnx.checker."""
+    if precision not in ("fp32", "fp16"):
+        raise ValueError(f"export_onnx: precision must be 'fp32' or 'fp16' (int8: quantize_int8), got {precision!r}")
+    model = model.eval()
+    graph = model if precision == "fp32" else _Float16Graph(model)
+    c, size = model.n_cameras, model.config.image_size
+    example = (torch.zeros(1, c, size, size, dtype=torch.uint8), torch.zeros(c, size, size, dtype=torch.uint8))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings():
+        # torch >= 2.9 marks the TorchScript exporter deprecated in favour of dynamo=True, which needs
+        # onnxscript (not a dependency of this project); the TorchScript path is still supported and tested.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", FutureWarning)
+        torch.onnx.export(graph, example, str(path), input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
+                          dynamic_axes={"images": {0: "batch"}, OUTPUT_NAME: {0: "batch"}}, opset_version=OPSET,
+                          do_constant_folding=True, dynamo=False)
+    proto = onnx.load(str(path))
+    onnx.checker.check_model(proto, full_check=True)
+    return path
+
+
+def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration_images: np.ndarray,
+                  reference: np.ndarray) -> Path:
+    """Static int8 quantization (QDQ, per-channel weights) of an exported fp32 graph.
+
+    calibration_images: (N, C, H, W) uint8 frames (training data) that set the activation ranges. The fusion
+    layer (the regression head: the MatMul/Gemm nodes after the last sigmoid) and the final scaling stay in
+    float: int8 steps of a head whose outputs span four orders of magnitude (most bins ~0, peaks ~0.3 N)
+    would swamp the small forces.
+    """
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        CalibrationMethod,
+        QuantFormat,
+        QuantType,
+        quant_pre_process,
+        quantize_static,
+    )
+
+    class _Reader(CalibrationDataReader):
+        def __init__(self):
+            self._frames = iter(calibration_images)
+
+        def get_next(self):
+            frame = next(self._frames, None)
+            return None if frame is None else {"images": frame[None], "reference": reference}
+
+    fp32_path, int8_path = Path(fp32_path), Path(int8_path)
+    prepared = int8_path.with_name(int8_path.stem + ".prep.onnx")
+    quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
+    try:
+        quantize_static(str(prepared), str(int8_path), _Reader(), quant_format=QuantFormat.QDQ,
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
+                        calibrate_method=CalibrationMethod.MinMax, nodes_to_exclude=fusion_node_names(prepared))
+    finally:
+        prepared.unlink(missing_ok=True)
+    onnx.checker.check_model(onnx.load(str(int8_path)), full_check=True)
+    return int8_path
+
+
+def fusion_node_names(path: str | Path) -> list[str]:
+    """Names of the graph's nodes after the last Sigmoid: the fusion layer, reshape and force scaling."""
+    nodes = onnx.load(str(path)).graph.node
+    last_sigmoid = max(i for i, node in enumerate(nodes) if node.op_type == "Sigmoid")
+    return [node.name for node in nodes[last_sigmoid + 1:]]

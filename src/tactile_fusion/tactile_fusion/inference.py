@@ -1,0 +1,180 @@
+"""Inference backends behind one interface: current + reference images in, bin forces in newtons out.
+
+    predictor = load_predictor()                      # shipped model, ONNX Runtime, float32
+    bin_forces_n = predictor.predict(images, reference_images)   # (C, H, W) uint8 each -> (rows, cols, 3) float32
+
+Backends: "onnxruntime" (default; precisions fp32, int8, fp16) and "torch" (fp32, fp16). Every input is
+checked before it reaches a backend: shape (C, H, W) with the model's camera count and image size, dtype
+uint8 or a float type holding grey levels (finite, in [0, 255]; rounded to uint8, the sensor's own depth),
+and, when `camera_ids` names the order of the images, only the model's cameras. A bad input raises
+InputError naming the input; a NaN never reaches the output.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, default_model_dir, load_model, read_model_json
+from tactile_fusion.export import copy_to_half
+from tactile_fusion.model import ForceFusionNet
+
+BACKENDS = {"onnxruntime": ("fp32", "int8", "fp16"), "torch": ("fp32", "fp16")}
+DEFAULT_THREADS = 1
+
+
+class InputError(ValueError):
+    """Images that the model cannot take: wrong shape, dtype, values, or cameras."""
+
+
+class ForcePredictor:
+    """Common part of the backends: metadata and input checking. Subclasses implement `_run`."""
+
+    backend = ""
+
+    def __init__(self, camera_ids: Sequence[str], rows: int, cols: int, image_size: int, precision: str):
+        self.camera_ids = tuple(camera_ids)
+        self.rows, self.cols = rows, cols
+        self.image_size = image_size
+        self.precision = precision
+
+    def predict(self, images: np.ndarray, reference: np.ndarray, camera_ids: Sequence[str] | None = None,
+                camera_ok: np.ndarray | None = None) -> np.ndarray:
+        """One frame: images and reference (C, H, W) -> bin forces (rows, cols, 3) float32 newtons.
+
+        camera_ids: the camera of each image, in the given order, when it is not the model's order.
+        camera_ok: (C,) bool, False for a camera known to be broken (dropped, frozen): its image is replaced by
+        its reference, i.e. that camera reports "no contact" and the other cameras carry the estimate.
+        """
+        ok = None if camera_ok is None else np.asarray(camera_ok, dtype=bool)[None]
+        images = self._checked(images, "images", camera_ids, batched=False)[None]
+        reference = self._checked(reference, "reference", camera_ids, batched=False)
+        return self._finite(self._run(self._masked(images, reference, ok, camera_ids), reference))[0]
+
+    def predict_batch(self, images: np.ndarray, reference: np.ndarray, camera_ids: Sequence[str] | None = None,
+                      camera_ok: np.ndarray | None = None) -> np.ndarray:
+        """Several frames: images (B, C, H, W), reference (C, H, W), camera_ok (B, C) -> (B, rows, cols, 3)."""
+        images = self._checked(images, "images", camera_ids, batched=True)
+        reference = self._checked(reference, "reference", camera_ids, batched=False)
+        return self._finite(self._run(self._masked(images, reference, camera_ok, camera_ids), reference))
+
+    def _masked(self, images: np.ndarray, reference: np.ndarray, camera_ok, camera_ids) -> np.ndarray:
+        """Images with each camera marked not ok replaced by its reference frame."""
+        if camera_ok is None:
+            return images
+        ok = np.asarray(camera_ok, dtype=bool)
+        if ok.shape != images.shape[:2]:
+            raise InputError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")
+        if camera_ids is not None:
+            ok = ok[:, self._order(camera_ids)]
+        if ok.all():
+            return images
+        return np.where(ok[:, :, None, None], images, reference[None])
+
+    def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _checked(self, array, name: str, camera_ids: Sequence[str] | None, batched: bool) -> np.ndarray:
+        """`array` as contiguous uint8 in the model's camera order, or InputError."""
+        if not isinstance(array, np.ndarray):
+            raise InputError(f"{name}: expected a numpy array, got {type(array).__name__}")
+        c, s = len(self.camera_ids), self.image_size
+        expected = (c, s, s) if not batched else ("B", c, s, s)
+        if array.ndim != len(expected) or array.shape[-3:] != (c, s, s):
+            raise InputError(f"{name}: expected shape {expected} (cameras {list(self.camera_ids)}, {s} x {s} "
+                             f"model images from crop_and_downsample), got {array.shape}")
+        if array.dtype == np.uint8:
+            checked = array
+        elif np.issubdtype(array.dtype, np.floating):
+            if not np.isfinite(array).all():
+                bad = np.argwhere(~np.isfinite(array))[0]
+                raise InputError(f"{name}: contains NaN or Inf (first at index {tuple(int(i) for i in bad)}): a "
+                                 "broken camera? Mark it as such upstream; the model needs finite grey levels")
+            if array.min() < 0 or array.max() > 255:
+                raise InputError(f"{name}: float grey levels must lie in [0, 255], got [{array.min()}, "
+                                 f"{array.max()}]")
+            checked = np.rint(array).astype(np.uint8)
+        else:
+            raise InputError(f"{name}: expected uint8 (or float grey levels in [0, 255]), got {array.dtype}")
+        if camera_ids is not None:
+            checked = checked[..., self._order(camera_ids), :, :]
+        return np.ascontiguousarray(checked)
+
+    def _order(self, camera_ids: Sequence[str]) -> list[int]:
+        """Indices that put images given in `camera_ids` order into the model's order."""
+        given = list(camera_ids)
+        unknown = [c for c in given if c not in self.camera_ids]
+        if unknown:
+            raise InputError(f"camera_ids: unknown cameras {unknown}; this model knows {list(self.camera_ids)}")
+        if sorted(given) != sorted(self.camera_ids):
+            raise InputError(f"camera_ids: expected each of {list(self.camera_ids)} once, got {given}")
+        return [given.index(c) for c in self.camera_ids]
+
+    def _finite(self, forces: np.ndarray) -> np.ndarray:
+        if not np.isfinite(forces).all():
+            raise FloatingPointError(f"{self.backend} {self.precision}: the model produced NaN or Inf from finite "
+                                     "inputs; the model file is corrupt or overflowed: re-export it")
+        return forces.reshape(forces.shape[0], self.rows, self.cols, 3).astype(np.float32, copy=False)
+
+
+class TorchPredictor(ForcePredictor):
+    backend = "torch"
+
+    def __init__(self, model: ForceFusionNet, precision: str = "fp32", threads: int | None = DEFAULT_THREADS):
+        super().__init__(model.camera_ids, model.rows, model.cols, model.config.image_size, precision)
+        if precision not in BACKENDS["torch"]:
+            raise ValueError(f"torch backend: precision must be one of {BACKENDS['torch']}, got {precision!r}")
+        self.model = model.eval() if precision == "fp32" else copy_to_half(model)
+        self.dtype = torch.float32 if precision == "fp32" else torch.float16
+        if threads is not None:
+            torch.set_num_threads(threads)
+
+    @torch.no_grad()
+    def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        difference = (torch.from_numpy(images).to(self.dtype) - torch.from_numpy(reference).to(self.dtype)) / 255.0
+        normalised = self.model.forward_normalised(difference)
+        return (normalised.float() * self.model.force_scale_n.float()).numpy()
+
+
+class OnnxRuntimePredictor(ForcePredictor):
+    backend = "onnxruntime"
+
+    def __init__(self, onnx_path: str | Path, description: dict, precision: str = "fp32",
+                 threads: int | None = DEFAULT_THREADS):
+        import onnxruntime as ort
+
+        size = description["model_config"]["image_size"]
+        super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads or 0
+        options.inter_op_num_threads = 1
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        self.session = ort.InferenceSession(str(onnx_path), options, providers=["CPUExecutionProvider"])
+
+    def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {"images": images, "reference": reference})[0]
+
+
+def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxruntime", precision: str = "fp32",
+                   threads: int | None = DEFAULT_THREADS) -> ForcePredictor:
+    """A predictor for a model directory (default: the shipped model).
+
+    threads: intra-op threads (None: the backend's default, all cores). One thread is the default: a batch of
+    one frame is too small to gain from more (docs/learning.md has the measurements), and the sensor's
+    other nodes need the remaining cores.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
+    if precision not in BACKENDS[backend]:
+        raise ValueError(f"backend {backend} supports precisions {list(BACKENDS[backend])}, not {precision!r}")
+    model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
+    description = read_model_json(model_dir)
+    if backend == "torch":
+        return TorchPredictor(load_model(model_dir), precision, threads)
+    path = model_dir / ONNX_FILES[precision]
+    if not path.exists():
+        raise ModelFileError(f"{path} is missing: export it with `tactile-fusion export --model {model_dir}`")
+    return OnnxRuntimePredictor(path, description, precision, threads)

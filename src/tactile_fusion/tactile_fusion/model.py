@@ -1,0 +1,211 @@
+"""The force-distribution model: one CNN shared by all cameras, then a linear fusion layer (Trueeb et al. 2020).
+
+Per camera, the difference between the current image and the camera's reference (no-contact) image goes
+through the same CNN (3x3 convolutions with batch normalisation and ReLU, 2x max pooling, then fully connected
+layers with sigmoid and dropout) that yields `camera_features` (300) numbers per camera. The features of all
+cameras are concatenated in the order of `camera_ids` and a linear fusion layer maps them to rows x cols x 3
+bin forces. All cameras of all frames go through the CNN as one batch.
+
+The network works on normalised forces (the bin forces divided by a global scale per component, see
+`force_scale_from_targets`); `forward` multiplies by that scale, so the model (and its ONNX export) returns
+newtons.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+#: Grey levels of a uint8 image: difference images are divided by this so they lie in [-1, 1].
+GREY_LEVELS = 255.0
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The network's shape. Camera ids and the bin grid come from the sensor description, not from here."""
+
+    image_size: int = 128                       # square model image (pixels), the sensor's output size
+    conv_channels: tuple[int, ...] = (4, 8, 16, 16)  # one conv block (conv, BN, ReLU, 2x max pool) per entry
+    hidden_features: int = 128                  # first fully connected layer of the shared CNN
+    camera_features: int = 300                  # per-camera features (the paper's 300)
+    dropout: float = 0.1
+    fusion_rank: int | None = 96                # None: one dense matrix; else a rank-limited linear map
+
+    def __post_init__(self):
+        pooled = self.image_size // 2 ** len(self.conv_channels)
+        if pooled < 1 or self.image_size % 2 ** len(self.conv_channels):
+            raise ValueError(f"ModelConfig: image_size {self.image_size} must be divisible by 2^"
+                             f"{len(self.conv_channels)} (one 2x pooling per conv block); use fewer conv_channels")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"ModelConfig: dropout must be in [0, 1), got {self.dropout}")
+        if self.fusion_rank is not None and self.fusion_rank < 1:
+            raise ValueError(f"ModelConfig: fusion_rank must be >= 1 or None, got {self.fusion_rank}")
+
+    @property
+    def flat_features(self) -> int:
+        """Length of the flattened output of the last conv block."""
+        side = self.image_size // 2 ** len(self.conv_channels)
+        return self.conv_channels[-1] * side * side
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["conv_channels"] = list(self.conv_channels)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ModelConfig:
+        d = dict(d)
+        d["conv_channels"] = tuple(d["conv_channels"])
+        return cls(**d)
+
+
+class ConvBlock(nn.Module):
+    """3x3 convolution (no bias: batch normalisation follows), batch norm, ReLU, 2x max pooling."""
+
+    def __init__(self, in_channels: int, out_channels: int):
+        super().__init__()
+        self.conv = nn.Conv2d(in_channels, out_channels, kernel_size=3, padding=1, bias=False)
+        self.norm = nn.BatchNorm2d(out_channels)
+        self.pool = nn.MaxPool2d(2)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, in, H, W) -> (N, out, H/2, W/2)."""
+        return self.pool(torch.relu(self.norm(self.conv(x))))
+
+
+class FeatureLayer(nn.Module):
+    """Fully connected layer, batch normalisation, sigmoid, dropout: one layer of the CNN's head.
+
+    The batch normalisation before the sigmoid is an addition to the paper's head: it keeps the sigmoid's input
+    centred and scaled while Adam moves the weights, so that the units do not saturate (0 or 1 for every
+    frame) early in training; with it the head learns several times faster (docs/learning.md). In evaluation
+    mode it is a fixed affine map that the ONNX export folds into the layer.
+    """
+
+    def __init__(self, in_features: int, out_features: int, dropout: float):
+        super().__init__()
+        self.linear = nn.Linear(in_features, out_features, bias=False)
+        self.norm = nn.BatchNorm1d(out_features)
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, in) -> (N, out), values in (0, 1)."""
+        return self.dropout(torch.sigmoid(self.norm(self.linear(x))))
+
+
+class CameraCNN(nn.Module):
+    """The CNN shared by all cameras: difference image -> `camera_features` numbers.
+
+    `last_layer` is the part retrained when a camera is added (modular recalibration); `trunk` and
+    `first_layer` stay frozen then.
+    """
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        inputs = (1, *config.conv_channels[:-1])
+        self.trunk = nn.Sequential(*(ConvBlock(c_in, c_out) for c_in, c_out in zip(inputs, config.conv_channels,
+                                                                                      strict=True)))
+        self.first_layer = FeatureLayer(config.flat_features, config.hidden_features, config.dropout)
+        self.last_layer = FeatureLayer(config.hidden_features, config.camera_features, config.dropout)
+
+    def hidden(self, difference: torch.Tensor) -> torch.Tensor:
+        """(N, 1, H, W) difference images -> (N, hidden_features): everything before `last_layer`."""
+        return self.first_layer(torch.flatten(self.trunk(difference), 1))
+
+    def forward(self, difference: torch.Tensor) -> torch.Tensor:
+        """(N, 1, H, W) difference images in [-1, 1] -> (N, camera_features)."""
+        return self.last_layer(self.hidden(difference))
+
+
+class FusionLayer(nn.Module):
+    """Linear map from the concatenated camera features to normalised bin forces.
+
+    With `rank` set, the matrix is stored as a product of two thin matrices (still one linear map, of rank
+    <= `rank`): for the reference sensor a dense 1200 x 1950 matrix is 2.3 M weights (9 MB), the factored
+    one at rank 96 is 0.3 M, trains faster and fits the smooth, low-dimensional force maps as well
+    (docs/learning.md).
+    """
+
+    def __init__(self, in_features: int, out_features: int, rank: int | None):
+        super().__init__()
+        if rank is None or rank >= min(in_features, out_features):
+            self.reduce = None
+            self.expand = nn.Linear(in_features, out_features)
+        else:
+            self.reduce = nn.Linear(in_features, rank, bias=False)
+            self.expand = nn.Linear(rank, out_features)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """(B, in_features) -> (B, out_features)."""
+        if self.reduce is not None:
+            features = self.reduce(features)
+        return self.expand(features)
+
+
+def difference_images(images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """Current minus reference image, in float (uint8 differences wrap around), scaled to [-1, 1].
+
+    images: (B, C, H, W) uint8 or float grey levels; reference: (C, H, W) or (B, C, H, W), same kind.
+    Returns (B, C, H, W) float32.
+    """
+    return (images.to(torch.float32) - reference.to(torch.float32)) / GREY_LEVELS
+
+
+class ForceFusionNet(nn.Module):
+    """Images of all cameras -> bin forces in newtons.
+
+    camera_ids: the cameras in input order (the fusion layer's feature blocks follow this order).
+    force_scale_n: (3,) scale of (fx, fy, fz) used to normalise the targets; stored as a buffer.
+    """
+
+    def __init__(self, config: ModelConfig, camera_ids: tuple[str, ...] | list[str], rows: int, cols: int,
+                 force_scale_n: torch.Tensor | None = None):
+        super().__init__()
+        if len(camera_ids) < 1 or len(set(camera_ids)) != len(camera_ids):
+            raise ValueError(f"ForceFusionNet: camera_ids must be non-empty and unique, got {list(camera_ids)}")
+        self.config = config
+        self.camera_ids = tuple(camera_ids)
+        self.rows, self.cols = int(rows), int(cols)
+        self.cnn = CameraCNN(config)
+        self.fusion = FusionLayer(len(camera_ids) * config.camera_features, self.rows * self.cols * 3,
+                                  config.fusion_rank)
+        scale = torch.ones(3) if force_scale_n is None else torch.as_tensor(force_scale_n, dtype=torch.float32)
+        if scale.shape != (3,) or not bool(torch.all(torch.isfinite(scale) & (scale > 0))):
+            raise ValueError(f"ForceFusionNet: force_scale_n must be 3 finite positive numbers, got {scale}")
+        self.register_buffer("force_scale_n", scale.clone())
+
+    @property
+    def n_cameras(self) -> int:
+        return len(self.camera_ids)
+
+    def fuse(self, camera_features: torch.Tensor) -> torch.Tensor:
+        """(B * C, camera_features) in frame-major order -> (B, rows, cols, 3) normalised forces."""
+        batch = camera_features.shape[0] // self.n_cameras
+        out = self.fusion(camera_features.reshape(batch, self.n_cameras * self.config.camera_features))
+        return out.reshape(batch, self.rows, self.cols, 3)
+
+    def forward_normalised(self, difference: torch.Tensor) -> torch.Tensor:
+        """(B, C, H, W) float difference images (see `difference_images`) -> (B, rows, cols, 3) normalised."""
+        b, c, h, w = difference.shape
+        return self.fuse(self.cnn(difference.reshape(b * c, 1, h, w)))
+
+    def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+        """images (B, C, H, W), reference (C, H, W): uint8 or float grey levels -> (B, rows, cols, 3) newtons."""
+        return self.forward_normalised(difference_images(images, reference)) * self.force_scale_n
+
+
+def force_scale_from_targets(bin_forces_n: torch.Tensor, floor_fraction: float = 0.01) -> torch.Tensor:
+    """A safe global scale per force component: the RMS of (fx, fy, fz) over all samples and bins.
+
+    One number per component, not per bin: most bins are zero in most samples, so a per-bin standard
+    deviation is zero and dividing by it gives Inf/NaN (SENSOR_BRIEF hazards). A component that is (nearly)
+    zero everywhere gets at least `floor_fraction` of the largest component's scale, and an all-zero data
+    set gets 1 N, so the scale is always finite and > 0.
+    """
+    rms = torch.sqrt(torch.mean(bin_forces_n.reshape(-1, 3).to(torch.float64) ** 2, dim=0))
+    largest = float(rms.max())
+    if not largest > 0.0 or not torch.isfinite(rms).all():
+        return torch.ones(3)
+    return torch.clamp(rms, min=floor_fraction * largest).to(torch.float32)

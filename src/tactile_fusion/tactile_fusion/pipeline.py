@@ -1,0 +1,146 @@
+"""The workflows behind the command line: get frames, train and export a model directory, evaluate it."""
+
+from __future__ import annotations
+
+import platform
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tactile_description import SensorDescription
+from tactile_fusion.artifacts import (
+    METRICS_JSON,
+    ONNX_FILES,
+    TRAINING_JSON,
+    load_model,
+    read_model_json,
+    save_model,
+    write_json,
+)
+from tactile_fusion.data import FrameSet, load_dataset_frames, simulate_frames, split_indices
+from tactile_fusion.evaluation import evaluate
+from tactile_fusion.export import export_onnx, quantize_int8
+from tactile_fusion.inference import BACKENDS, load_predictor
+from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
+from tactile_fusion.plots import plot_fz_maps
+from tactile_fusion.training import TrainConfig, build_model, train_phases
+from tactile_sim import load_scene
+
+DEFAULT_SCENE = "paper_grid"
+#: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
+HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
+#: Training frames that set the int8 activation ranges.
+CALIBRATION_FRAMES = 64
+CHECKPOINTS = "checkpoint_*.pt"
+FZ_MAP_PNG = "fz_map.png"
+
+
+def scene_frames(sensor: SensorDescription, scene_name: str, split: str | None = None, frames: int | None = None,
+                 progress: bool = False) -> FrameSet:
+    """Frames of a scene (installed name or YAML file), simulated.
+
+    split: None for every frame (the first `frames` when given), or "train"/"val"/"test" of the 70/10/20 split
+    drawn from the scene's seed over the whole scene (the first `frames` of that split when given).
+    """
+    scene = load_scene(scene_name, sensor)
+    if split is None:
+        indices = np.arange(len(scene) if frames is None else min(frames, len(scene)))
+    else:
+        indices = split_indices(len(scene), scene.seed)[split][:frames]
+    return simulate_frames(sensor, scene, indices, progress=progress)
+
+
+def training_frames(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None,
+                    frames: int | None, progress: bool) -> FrameSet:
+    """All frames to split for training: a written dataset, or a scene (its first `frames` frames)."""
+    if dataset is not None:
+        data = load_dataset_frames(dataset, sensor)
+        return data if frames is None else data.subset(np.arange(min(frames, len(data))))
+    return scene_frames(sensor, scene_name or DEFAULT_SCENE, frames=frames, progress=progress)
+
+
+def train_model(frames: FrameSet, model_config: ModelConfig, train_config: TrainConfig,
+                checkpoint_dir: Path | None, resume: bool, progress: bool) -> tuple[ForceFusionNet, dict, dict]:
+    """Split `frames` 70/10/20 from their seed, train on 70 % with early stopping on 10 %.
+
+    Returns the model, the training results of each phase and the split (indices into `frames`).
+    """
+    split = split_indices(len(frames), frames.seed)
+    train, val = frames.subset(split["train"]), frames.subset(split["val"])
+    scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
+    rows, cols = frames.bin_forces_n.shape[1:3]
+    model = build_model(model_config, frames.camera_ids, rows, cols, scale, train_config.seed)
+    results = train_phases(model, train, val, train_config, checkpoint_dir, resume, progress)
+    return model, results, split
+
+
+def export_all(model: ForceFusionNet, out_dir: Path, calibration: FrameSet) -> dict:
+    """Write the fp32, fp16 and int8 ONNX graphs of `model` into `out_dir`; returns {precision: path}."""
+    paths = {"fp32": export_onnx(model, out_dir / ONNX_FILES["fp32"], "fp32"),
+             "fp16": export_onnx(model, out_dir / ONNX_FILES["fp16"], "fp16")}
+    images = np.asarray(calibration.images[:CALIBRATION_FRAMES])
+    paths["int8"] = quantize_int8(paths["fp32"], out_dir / ONNX_FILES["int8"], images, calibration.reference)
+    return paths
+
+
+def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> dict:
+    """Test metrics of every backend and precision, and each one's largest deviation from torch fp32 (N)."""
+    results, predictions = {}, {}
+    for backend, precisions in BACKENDS.items():
+        for precision in precisions:
+            key = f"{backend}_{precision}"
+            metrics, predictions[key] = evaluate(load_predictor(model_dir, backend, precision, threads), test)
+            results[key] = metrics
+    reference = predictions["torch_fp32"]
+    for key, predicted in predictions.items():
+        results[key]["max_abs_deviation_from_torch_fp32_n"] = float(np.abs(predicted - reference).max())
+    return results
+
+
+def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: ModelConfig,
+                     train_config: TrainConfig, out_dir: str | Path, resume: bool = False, progress: bool = True,
+                     threads: int | None = None, data_source: str = "") -> dict:
+    """The whole `tactile-fusion train`: train, save, export, evaluate on the test split, write the JSON files.
+
+    Returns the metrics dict that is written to metrics.json.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    model, results, split = train_model(frames, model_config, train_config, out_dir, resume, progress)
+    training_wall_s = time.perf_counter() - started
+    save_model(model, out_dir, sensor.name)
+    test = frames.subset(split["test"])
+    export_all(model, out_dir, frames.subset(split["train"][:CALIBRATION_FRAMES]))
+    metrics = {"data": {"source": data_source, "scene": frames.scene, "seed": frames.seed, "split": "test",
+                        "frames": len(test)},
+               "backends": evaluate_model_dir(out_dir, test, threads)}
+    metrics.update({k: metrics["backends"]["onnxruntime_fp32"][k] for k in ("rmse_bin_n", "rmse_total_n")})
+    write_json(out_dir / METRICS_JSON, metrics)
+    write_json(out_dir / TRAINING_JSON, {
+        "train_config": asdict(train_config),
+        "model_config": model_config.to_dict(),
+        "data": {"source": data_source, "scene": frames.scene, "seed": frames.seed, "frames": len(frames),
+                 "split_sizes": {k: len(v) for k, v in split.items()}},
+        "sensor": sensor.name,
+        "phases": {phase: result.to_dict() for phase, result in results.items()},
+        "wall_time_s": {"training": training_wall_s, **{p: r.wall_time_s for p, r in results.items()}},
+        "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
+                    "torch": torch.__version__},
+    })
+    predicted = load_predictor(out_dir, "onnxruntime", "fp32", threads).predict_batch(
+        np.asarray(test.images), test.reference, test.camera_ids, np.asarray(test.camera_ok))
+    plot_fz_maps(test.bin_forces_n, predicted, out_dir / FZ_MAP_PNG, f"{frames.scene} test split: Fz per bin")
+    for checkpoint in out_dir.glob(CHECKPOINTS):
+        checkpoint.unlink()  # training finished: the model files supersede the checkpoints
+    return metrics
+
+
+def export_model_dir(model_dir: str | Path, calibration: FrameSet) -> dict:
+    """Re-export the ONNX graphs of a model directory from its torch state dict."""
+    model_dir = Path(model_dir)
+    read_model_json(model_dir)
+    return export_all(load_model(model_dir), model_dir, calibration)

@@ -1,0 +1,86 @@
+"""Figures for people: ground truth vs predicted Fz maps (like the paper's Fig. 5) and the recalibration sweep."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only, no display needed
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def example_frames(true_n: np.ndarray, count: int = 3) -> list[int]:
+    """Frames worth showing: the largest total Fz, then the frames at 30 %, 60 %, ... of the ranking."""
+    order = np.argsort(-true_n[..., 2].sum(axis=(1, 2)))
+    picks = [int(order[round(0.3 * i * (len(order) - 1))]) for i in range(count) if 0.3 * i <= 1.0]
+    return list(dict.fromkeys(picks))
+
+
+def plot_fz_maps(true_n: np.ndarray, predicted_n: np.ndarray, path: str | Path, title: str,
+                 frames: list[int] | None = None, bin_size_mm: float = 1.96) -> Path:
+    """Ground truth (top row) and predicted (bottom row) Fz maps in newtons for a few frames, shared colour scale."""
+    frames = frames if frames is not None else example_frames(true_n)
+    fig, axes = plt.subplots(2, len(frames), figsize=(3.4 * len(frames) + 0.8, 6.4), squeeze=False,
+                             constrained_layout=True)
+    vmax = max(float(true_n[frames][..., 2].max()), float(predicted_n[frames][..., 2].max()), 1e-6)
+    rows, cols = true_n.shape[1:3]
+    extent = (0, cols * bin_size_mm, rows * bin_size_mm, 0)
+    image = None
+    for j, frame in enumerate(frames):
+        for i, (label, data) in enumerate((("ground truth", true_n), ("prediction", predicted_n))):
+            ax = axes[i, j]
+            image = ax.imshow(data[frame, :, :, 2], cmap="viridis", vmin=0.0, vmax=vmax, extent=extent)
+            total = float(data[frame, :, :, 2].sum())
+            ax.set_title(f"frame {frame}: {label}\ntotal Fz {total:.3f} N", fontsize=9)
+            ax.set_xlabel("x (mm)", fontsize=8)
+            ax.set_ylabel("y (mm)", fontsize=8)
+            ax.tick_params(labelsize=7)
+    fig.colorbar(image, ax=axes, label="bin Fz (N)", shrink=0.8)
+    fig.suptitle(title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def least_squares_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(slope, intercept) of the least-squares line through (x, y): y ~ slope x + intercept."""
+    design = np.stack([np.asarray(x, dtype=np.float64), np.ones(len(x))], axis=1)
+    (slope, intercept), *_ = np.linalg.lstsq(design, np.asarray(y, dtype=np.float64), rcond=None)
+    return float(slope), float(intercept)
+
+
+def plot_recalibration(sweep: dict, path: str | Path) -> Path:
+    """Left: test errors against the fraction of data used for recalibration, with least-squares trend lines
+    and the fully trained model's error; right: wall time of full training against recalibration."""
+    fractions = np.array([run["fraction"] for run in sweep["recalibration"]])
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    for key, label, colour in (("rmse_bin_n", "per-bin Fz RMSE", "tab:blue"),
+                               ("rmse_total_n", "total Fz RMSE / 10", "tab:orange")):
+        scale = 0.1 if key == "rmse_total_n" else 1.0
+        errors = np.array([run["metrics"][key][2] for run in sweep["recalibration"]]) * scale * 1e3
+        slope, intercept = least_squares_line(fractions, errors)
+        ax.plot(fractions * 100, errors, "o", color=colour, label=f"recalibrated: {label}")
+        line = np.linspace(fractions.min(), fractions.max(), 50)
+        ax.plot(line * 100, slope * line + intercept, "-", color=colour, alpha=0.6,
+                label=f"trend {slope:+.3f} mN per 100 % data")
+        ax.axhline(sweep["full_training"]["metrics"][key][2] * scale * 1e3, color=colour, ls="--", alpha=0.7,
+                   label=f"full training ({label})")
+    ax.set_xlabel("training data used for recalibration (%)")
+    ax.set_ylabel("RMSE on the test split (mN)")
+    ax.set_title(f"adding camera {sweep['added_camera']} to a {sweep['base_cameras']}-camera model")
+    ax.legend(fontsize=7)
+    names = ["full training"] + [f"recal. {100 * f:.0f} %" for f in fractions]
+    times = [sweep["full_training"]["wall_time_s"]] + [run["wall_time_s"] for run in sweep["recalibration"]]
+    bx.bar(range(len(names)), times, color=["tab:red"] + ["tab:green"] * len(fractions))
+    bx.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
+    bx.set_ylabel("wall time (s)")
+    bx.set_title(f"full training / recalibration (100 % data): {sweep['speedup_full_data']:.1f}x")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,79 @@
+"""What a batch of frame indices becomes for the training loop: normalised predictions and targets.
+
+- `ImageSource`: difference images through the whole network (end-to-end training).
+- `CachedSource`: the output of a frozen front part of the network, computed once per frame; a training step
+  runs only the layers after it. Used twice: the head phase of training (conv trunk frozen, training.py) and
+  modular recalibration (trunk and first fully connected layer frozen, recalibration.py). Running the frozen
+  part in every step would give the same numbers (frozen batch norm uses its running statistics in both
+  cases; the dropout of a cached stage is applied to the cached features in training mode), only slower.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tactile_fusion.data import FrameSet
+from tactile_fusion.model import ForceFusionNet, difference_images
+
+#: Where a CachedSource cuts the network: after the conv trunk, or after the first fully connected layer.
+CUTS = ("trunk", "hidden")
+
+
+class ImageSource:
+    """Frames -> difference images through the whole network; targets divided by the model's force scale."""
+
+    def __init__(self, frames: FrameSet, force_scale_n: torch.Tensor):
+        self.frames = frames
+        self.reference = torch.from_numpy(np.asarray(frames.reference))
+        self.force_scale_n = force_scale_n
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+        images = torch.from_numpy(np.asarray(self.frames.images[np.sort(indices)]))
+        return model.forward_normalised(difference_images(images, self.reference))
+
+    def target(self, indices: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.asarray(self.frames.bin_forces_n[np.sort(indices)])) / self.force_scale_n
+
+
+class CachedSource:
+    """Frames as the cached output of the model's front part up to `cut` ("trunk" or "hidden").
+
+    The front part must stay frozen while this source is used (the caller sets requires_grad False on it).
+    """
+
+    def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, batch_size: int = 32):
+        if cut not in CUTS:
+            raise ValueError(f"CachedSource: cut must be one of {CUTS}, got {cut!r}")
+        self.cut = cut
+        self.force_scale_n = model.force_scale_n
+        reference = torch.from_numpy(np.asarray(frames.reference))
+        chunks = []
+        model.eval()
+        with torch.no_grad():
+            for start in range(0, len(frames), batch_size):
+                difference = difference_images(torch.from_numpy(np.asarray(frames.images[start:start + batch_size])),
+                                               reference)
+                b, c, h, w = difference.shape
+                x = torch.flatten(model.cnn.trunk(difference.reshape(b * c, 1, h, w)), 1)
+                if cut == "hidden":
+                    x = model.cnn.first_layer(x)
+                chunks.append(x.reshape(b, c, -1))
+        self.features = torch.cat(chunks)                                  # (N, C, features at the cut)
+        self.targets = torch.from_numpy(np.asarray(frames.bin_forces_n))
+
+    def __len__(self) -> int:
+        return len(self.features)
+
+    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+        x = self.features[np.sort(indices)]
+        b, c, n = x.shape
+        x = x.reshape(b * c, n)
+        x = model.cnn.first_layer(x) if self.cut == "trunk" else model.cnn.first_layer.dropout(x)
+        return model.fuse(model.cnn.last_layer(x))
+
+    def target(self, indices: np.ndarray) -> torch.Tensor:
+        return self.targets[np.sort(indices)] / self.force_scale_n

@@ -1,0 +1,239 @@
+"""Training loop: RMSE loss that stays finite, Adam, early stopping on the validation split, seeded and
+reproducible, tqdm progress bars, checkpoints that resume to exactly the same weights.
+
+The loop is generic over a `BatchSource` (what a batch of frame indices becomes: normalised predictions and
+targets), so full training (difference images through the whole network) and modular recalibration (cached
+features of the frozen CNN, see recalibration.py) share it.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from tactile_fusion.data import FrameSet
+from tactile_fusion.model import ForceFusionNet, ModelConfig
+from tactile_fusion.sources import CachedSource, ImageSource
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How to train. Two runs with the same config, data and seed give the same weights.
+
+    Training has two phases (`train_phases`): end-to-end for up to `max_epochs`, then the head (fully
+    connected layers and fusion) alone for up to `head_epochs` on cached conv features, which costs about
+    1/40 of an end-to-end epoch. Each phase stops early after `patience` epochs without a better validation RMSE.
+    """
+
+    max_epochs: int = 80
+    batch_size: int = 16          # frames per step; each brings all its cameras through the CNN
+    learning_rate: float = 2e-3
+    patience: int = 12            # early stopping: epochs without a better validation RMSE
+    lr_patience: int = 4          # halve the learning rate after this many epochs without improvement
+    min_learning_rate: float = 1e-5
+    seed: int = 0
+    loss_eps: float = 1e-8        # RMSE = sqrt(MSE + eps): finite gradient at zero error
+    head_epochs: int = 0          # second phase: conv trunk frozen, head trained on cached features
+    head_learning_rate: float = 2e-3
+
+    def __post_init__(self):
+        if self.head_epochs < 0:
+            raise ValueError(f"TrainConfig.head_epochs must be >= 0, got {self.head_epochs}")
+        for name in ("max_epochs", "batch_size", "patience", "lr_patience"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if not (self.learning_rate > 0 and self.head_learning_rate > 0 and self.loss_eps > 0):
+            raise ValueError("TrainConfig.learning_rate, head_learning_rate and loss_eps must be > 0")
+
+    def head_phase(self) -> TrainConfig:
+        """The settings of the head phase: its own epochs and learning rate, the rest shared."""
+        return replace(self, max_epochs=self.head_epochs, learning_rate=self.head_learning_rate, head_epochs=0)
+
+
+def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """sqrt(mean((prediction - target)^2) + eps).
+
+    d sqrt(m)/dm = 1 / (2 sqrt(m)) is infinite at m = 0 (an exact batch gives NaN gradients, SENSOR_BRIEF
+    hazards); with eps the gradient is dm / (2 sqrt(m + eps)), which is 0 when the error is 0. eps = 1e-8 on
+    normalised forces moves the loss by at most 1e-4 of the force scale.
+    """
+    return torch.sqrt(torch.mean((prediction - target) ** 2) + eps)
+
+
+class BatchSource(Protocol):
+    """What the training loop needs from data: normalised predictions and targets for frame indices."""
+
+    def __len__(self) -> int: ...
+
+    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor: ...
+
+    def target(self, indices: np.ndarray) -> torch.Tensor: ...
+
+
+@dataclass
+class TrainResult:
+    initial_val_rmse: float         # normalised validation RMSE before the first epoch
+    best_epoch: int                 # 1-based epoch whose weights were kept (0: none better than the start)
+    best_val_rmse: float            # normalised validation RMSE of those weights
+    epochs_run: int
+    wall_time_s: float              # training time, summed over resumed runs
+    stopped_early: bool
+    history: list = field(default_factory=list)  # per epoch: train/val RMSE (normalised), learning rate
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def build_model(config: ModelConfig, camera_ids, rows: int, cols: int, force_scale_n: torch.Tensor,
+                seed: int) -> ForceFusionNet:
+    """A freshly initialised model; the initial weights depend only on `seed`."""
+    torch.manual_seed(seed)
+    return ForceFusionNet(config, camera_ids, rows, cols, force_scale_n)
+
+
+def epoch_batches(n: int, batch_size: int, seed: int, epoch: int) -> list[np.ndarray]:
+    """The shuffled batches of one epoch, a function of (seed, epoch) only, so a resumed run repeats them."""
+    order = np.random.default_rng([seed, epoch]).permutation(n)
+    return [order[i:i + batch_size] for i in range(0, n, batch_size)]
+
+
+@torch.no_grad()
+def normalised_rmse(model: ForceFusionNet, source: BatchSource, batch_size: int = 64) -> float:
+    """RMSE over all frames of `source` (normalised forces), evaluation mode."""
+    model.eval()
+    total, count = 0.0, 0
+    for start in range(0, len(source), batch_size):
+        idx = np.arange(start, min(start + batch_size, len(source)))
+        err = source.predict(model, idx) - source.target(idx)
+        total += float(torch.sum(err.double() ** 2))
+        count += err.numel()
+    return float(np.sqrt(total / max(count, 1)))
+
+
+def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
+        checkpoint_path: str | Path | None = None, resume: bool = False, progress: bool = False,
+        on_epoch_end: Callable[[int, dict], None] | None = None, desc: str = "train") -> TrainResult:
+    """Train the parameters of `model` that require gradients; keep the weights of the best validation epoch.
+
+    checkpoint_path: written after every epoch (atomically); with `resume`, training continues from it and
+    ends with the same weights as an uninterrupted run. on_epoch_end(epoch, record) is called after each
+    epoch's checkpoint (an exception raised there interrupts training cleanly).
+    """
+    params = [p for p in model.parameters() if p.requires_grad]
+    if not params:
+        raise ValueError("fit: the model has no trainable parameters")
+    if len(train) < 1 or len(val) < 1:
+        raise ValueError(f"fit: need at least one training and one validation frame, got {len(train)} and "
+                         f"{len(val)}")
+    optimizer = torch.optim.Adam(params, lr=config.learning_rate)
+    scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.lr_patience,
+                                                           min_lr=config.min_learning_rate)
+    initial_val = normalised_rmse(model, val)
+    state = {"epoch": 0, "initial_val": initial_val, "best_val": initial_val, "best_epoch": 0,
+             "best_model": copy.deepcopy(model.state_dict()), "since_best": 0, "history": [], "wall_time_s": 0.0}
+    checkpoint_path = Path(checkpoint_path) if checkpoint_path is not None else None
+    if resume and checkpoint_path is not None and checkpoint_path.exists():
+        state = _load_checkpoint(checkpoint_path, model, optimizer, scheduler, config)
+
+    epochs = tqdm(range(state["epoch"] + 1, config.max_epochs + 1), desc=desc, unit="epoch", disable=not progress,
+                  initial=state["epoch"], total=config.max_epochs)
+    for epoch in epochs:
+        if state["since_best"] >= config.patience:
+            break
+        started = time.perf_counter()
+        torch.manual_seed(config.seed * 100_003 + epoch)  # dropout masks of this epoch
+        model.train()
+        losses = []
+        for idx in tqdm(epoch_batches(len(train), config.batch_size, config.seed, epoch), desc=f"epoch {epoch}",
+                        unit="batch", leave=False, disable=not progress):
+            loss = rmse_loss(train.predict(model, idx), train.target(idx), config.loss_eps)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            losses.append(float(loss.detach()))
+        val_rmse = normalised_rmse(model, val)
+        scheduler.step(val_rmse)
+        if val_rmse < state["best_val"]:
+            state.update(best_val=val_rmse, best_epoch=epoch, best_model=copy.deepcopy(model.state_dict()),
+                         since_best=0)
+        else:
+            state["since_best"] += 1
+        record = {"epoch": epoch, "train_rmse": float(np.mean(losses)), "val_rmse": val_rmse,
+                  "learning_rate": optimizer.param_groups[0]["lr"]}
+        state["history"].append(record)
+        state["epoch"] = epoch
+        state["wall_time_s"] += time.perf_counter() - started
+        epochs.set_postfix(val_rmse=f"{val_rmse:.4f}", best=f"{state['best_val']:.4f}")
+        if checkpoint_path is not None:
+            _save_checkpoint(checkpoint_path, model, optimizer, scheduler, config, state)
+        if on_epoch_end is not None:
+            on_epoch_end(epoch, record)
+    epochs.close()
+    model.load_state_dict(state["best_model"])
+    model.eval()
+    return TrainResult(initial_val_rmse=state["initial_val"], best_epoch=state["best_epoch"],
+                       best_val_rmse=state["best_val"], epochs_run=state["epoch"], wall_time_s=state["wall_time_s"],
+                       stopped_early=state["since_best"] >= config.patience, history=state["history"])
+
+
+def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: TrainConfig,
+                 checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool = False,
+                 on_epoch_end: Callable[[int, dict], None] | None = None) -> dict[str, TrainResult]:
+    """End-to-end training, then (if config.head_epochs) the head alone on cached conv-trunk features.
+
+    Why two phases: an end-to-end step spends almost all its time in the convolutions at full resolution,
+    while the head (sigmoid layers and fusion) needs many more epochs than the conv filters to converge; with
+    the trunk frozen its output is computed once and a head epoch costs about 1/40 of an end-to-end one.
+    Each phase keeps its own checkpoint in `checkpoint_dir`, so an interrupted run resumes in either phase.
+    Returns {"end_to_end": result, "head": result} ("head" only when it ran).
+    """
+    checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
+    scale = model.force_scale_n
+    results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
+                                 _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
+                                 desc="train end-to-end")}
+    if config.head_epochs:
+        model.cnn.trunk.requires_grad_(False)
+        try:
+            results["head"] = fit(model, CachedSource(model, train, "trunk"), CachedSource(model, val, "trunk"),
+                                  config.head_phase(), _phase_checkpoint(checkpoint_dir, "head"), resume, progress,
+                                  on_epoch_end, desc="train head")
+        finally:
+            model.cnn.trunk.requires_grad_(True)
+    return results
+
+
+def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:
+    return None if checkpoint_dir is None else checkpoint_dir / f"checkpoint_{phase}.pt"
+
+
+def _save_checkpoint(path: Path, model: nn.Module, optimizer, scheduler, config: TrainConfig, state: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save({"model": model.state_dict(), "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(), "train_config": asdict(config), "state": state}, tmp)
+    os.replace(tmp, path)  # atomic: an interruption never leaves a half-written checkpoint
+
+
+def _load_checkpoint(path: Path, model: nn.Module, optimizer, scheduler, config: TrainConfig) -> dict:
+    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    if checkpoint["train_config"] != asdict(config):
+        raise ValueError(f"checkpoint {path} was written with training settings {checkpoint['train_config']}, "
+                         f"not {asdict(config)}: resume with the same settings or delete the checkpoint")
+    try:
+        model.load_state_dict(checkpoint["model"])
+    except RuntimeError as exc:
+        raise ValueError(f"checkpoint {path} does not fit this model ({exc}); delete it to start afresh") from exc
+    optimizer.load_state_dict(checkpoint["optimizer"])
+    scheduler.load_state_dict(checkpoint["scheduler"])
+    return checkpoint["state"]

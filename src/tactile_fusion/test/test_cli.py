@@ -1,0 +1,109 @@
+"""`tactile-fusion` through real subprocesses, with a tiny network and a few simulated frames."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON
+
+CONFIG = Path(__file__).resolve().parents[3] / "config"
+TINY = ["--conv-channels", "2,2,2,2", "--hidden-features", "8", "--camera-features", "8", "--fusion-rank", "4",
+        "--quiet"]
+
+
+def run(*args, check=True):
+    result = subprocess.run([sys.executable, "-m", "tactile_fusion.cli", *args], capture_output=True, text=True,
+                            timeout=300, env=os.environ | {"PYTHONWARNINGS": "ignore"})
+    if check and result.returncode != 0:
+        raise AssertionError(f"tactile-fusion {' '.join(args)} failed ({result.returncode}):\n{result.stderr}")
+    return result
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny_model")
+    result = run("train", "--frames", "60", "--epochs", "1", "--head-epochs", "1", "--out", str(out), *TINY)
+    return out, result
+
+
+def test_train_writes_a_complete_model_directory(tiny_model):
+    out, result = tiny_model
+    for name in (MODEL_JSON, STATE_DICT, TRAINING_JSON, METRICS_JSON, *ONNX_FILES.values()):
+        assert (out / name).is_file(), name
+    assert not list(out.glob("checkpoint_*.pt"))
+    training = json.loads((out / TRAINING_JSON).read_text())
+    assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
+    assert set(training["phases"]) == {"end_to_end", "head"}
+    metrics = json.loads((out / METRICS_JSON).read_text())
+    assert set(metrics["backends"]) == {"onnxruntime_fp32", "onnxruntime_int8", "onnxruntime_fp16", "torch_fp32",
+                                        "torch_fp16"}
+    assert "onnxruntime_fp32" in result.stdout and "model written to" in result.stdout
+
+
+def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):
+    out, _ = tiny_model
+    result = run("eval", "--model", str(out), "--frames", "4", "--json", "--out", str(tmp_path))
+    report = json.loads(result.stdout)
+    for key in ("rmse_bin_n", "rmse_total_n"):
+        assert len(report[key]) == 3 and all(v >= 0 for v in report[key])
+    assert report["data_sets"]["paper_grid test split"]["frames"] == 4
+    assert (tmp_path / "metrics.json").is_file()
+    assert list(tmp_path.glob("fz_map_*.png"))
+
+
+def test_eval_prints_a_table_for_a_scene_and_each_precision(tiny_model):
+    out, _ = tiny_model
+    result = run("eval", "--model", str(out), "--scene", "edge_corner", "--frames", "3", "--precision", "int8",
+                 "--quiet")
+    assert "edge_corner (all)" in result.stdout and "bin Fz mN" in result.stdout
+
+
+def test_bench_json_reports_each_backend_and_precision(tiny_model):
+    out, _ = tiny_model
+    report = json.loads(run("bench", "--model", str(out), "--runs", "5", "--json").stdout)
+    assert set(report["backends"]) == {"onnxruntime_fp32", "onnxruntime_int8", "onnxruntime_fp16", "torch_fp32",
+                                       "torch_fp16"}
+    assert all(entry["ms_per_frame"] > 0 for entry in report["backends"].values())
+    assert report["backends"]["onnxruntime_fp32"]["ratio_to_baseline"] == 1.0
+    assert report["cameras"] == 4 and report["batch"] == 1
+
+
+def test_export_rewrites_the_onnx_graphs(tiny_model):
+    out, _ = tiny_model
+    before = (out / ONNX_FILES["fp32"]).stat().st_mtime_ns
+    result = run("export", "--model", str(out), "--quiet")
+    assert (out / ONNX_FILES["fp32"]).stat().st_mtime_ns > before
+    assert "int8" in result.stdout
+
+
+def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
+    result = run("recalibrate", "--frames", "60", "--epochs", "1", "--fractions", "0.5,1.0", "--out", str(tmp_path),
+                 "--json", *TINY)
+    report = json.loads(result.stdout)
+    assert report["added_camera"] == "cam3" and report["base_cameras"] == 3
+    assert [r["fraction"] for r in report["recalibration"]] == [0.5, 1.0]
+    assert report["speedup_full_data"] > 0
+    assert (tmp_path / "recalibration.json").is_file() and (tmp_path / "recalibration.png").is_file()
+
+
+def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
+    from tactile_description import load_sensor
+    from tactile_sim import Simulator, load_scene, write_dataset
+
+    skin = load_sensor(CONFIG / "skin_3x3.yaml")
+    dataset = write_dataset(Simulator(skin), load_scene("paper_grid", skin), tmp_path / "skin", progress=False,
+                            frames=3)
+    result = run("train", "--dataset", str(dataset), "--out", str(tmp_path / "model"), *TINY, check=False)
+    assert result.returncode == 2
+    assert "cameras" in result.stderr and "regenerate" in result.stderr
+
+
+def test_a_model_for_another_sensor_is_refused(tiny_model):
+    out, _ = tiny_model
+    result = run("eval", "--model", str(out), "--sensor", str(CONFIG / "skin_3x3.yaml"), "--frames", "2",
+                 check=False)
+    assert result.returncode == 2 and "trained for cameras" in result.stderr

@@ -1,0 +1,75 @@
+"""Frames from the simulator and from written datasets, the deterministic split, and sensor mismatch errors."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactile_description import load_sensor
+from tactile_fusion.data import (
+    DatasetMismatchError,
+    check_frames_match_sensor,
+    load_dataset_frames,
+    simulate_frames,
+    split_indices,
+)
+from tactile_sim import Simulator, load_scene, write_dataset
+
+CONFIG = Path(__file__).resolve().parents[3] / "config"
+
+
+@pytest.fixture(scope="module")
+def sensor():
+    return load_sensor(CONFIG / "sensor.yaml")
+
+
+def test_split_is_70_10_20_disjoint_complete_and_deterministic():
+    split = split_indices(1000, seed=7)
+    assert [len(split[k]) for k in ("train", "val", "test")] == [700, 100, 200]
+    everything = np.concatenate([split["train"], split["val"], split["test"]])
+    assert sorted(everything) == list(range(1000))
+    again = split_indices(1000, seed=7)
+    assert all(np.array_equal(split[k], again[k]) for k in split)
+    assert not np.array_equal(split["test"], split_indices(1000, seed=8)["test"])
+    tiny = split_indices(3, seed=0)
+    assert all(len(tiny[k]) == 1 for k in tiny)
+    with pytest.raises(ValueError, match="at least 3 frames"):
+        split_indices(2, seed=0)
+
+
+def test_simulated_frames_keep_only_the_requested_indices(sensor):
+    scene = load_scene("paper_grid", sensor)
+    every = simulate_frames(sensor, scene, np.arange(50))
+    picked = simulate_frames(sensor, scene, np.array([3, 41, 47]))
+    assert picked.images.shape == (3, 4, 128, 128) and picked.images.dtype == np.uint8
+    assert picked.bin_forces_n.shape == (3, 26, 25, 3) and picked.bin_forces_n.dtype == np.float32
+    np.testing.assert_array_equal(picked.images, every.images[[3, 41, 47]])
+    np.testing.assert_array_equal(picked.bin_forces_n, every.bin_forces_n[[3, 41, 47]])
+    assert picked.camera_ids == sensor.camera_ids and picked.seed == scene.seed and picked.scene == "paper_grid"
+    assert every.bin_forces_n[45:, :, :, 2].sum() > 0  # presses after the rest frames
+
+
+def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sensor, tmp_path):
+    sim = Simulator(sensor)
+    path = write_dataset(sim, load_scene("paper_grid", sensor), tmp_path / "ds", progress=False, frames=6)
+    frames = load_dataset_frames(path, sensor)
+    assert len(frames) == 6 and frames.camera_ids == sensor.camera_ids and frames.scene == "paper_grid"
+    skin = load_sensor(CONFIG / "skin_3x3.yaml")
+    with pytest.raises(DatasetMismatchError, match=r"cameras \['cam0', 'cam1', 'cam2', 'cam3'\].*regenerate"):
+        load_dataset_frames(path, skin)
+
+
+def test_mismatched_grid_and_image_size_are_named(sensor):
+    with pytest.raises(DatasetMismatchError, match="10 x 10 bin grid.*26 x 25"):
+        check_frames_match_sensor(sensor.camera_ids, 10, 10, (128, 128), sensor, "data X")
+    with pytest.raises(DatasetMismatchError, match="64 x 64 images.*outputs 128 x 128"):
+        check_frames_match_sensor(sensor.camera_ids, 26, 25, (64, 64), sensor, "data X")
+    check_frames_match_sensor(sensor.camera_ids, 26, 25, (128, 128), sensor, "data X")  # the matching case passes
+
+
+def test_select_cameras_reorders_and_rejects_unknown_ids(frames):
+    picked = frames.select_cameras(("right",))
+    np.testing.assert_array_equal(picked.images[:, 0], frames.images[:, 1])
+    np.testing.assert_array_equal(picked.reference[0], frames.reference[1])
+    with pytest.raises(DatasetMismatchError, match="cam7"):
+        frames.select_cameras(("cam7",))

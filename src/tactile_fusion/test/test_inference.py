@@ -1,0 +1,154 @@
+"""ONNX export and the inference backends behind one interface: agreement, input checks, precisions."""
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, load_model, save_model
+from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
+from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
+from tactile_fusion.model import ForceFusionNet, ModelConfig
+from tactile_fusion.sources import ImageSource
+from tactile_fusion.training import TrainConfig, build_model, fit
+
+CAMERAS = ("left", "right")
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory, make_frames):
+    """A tiny model trained for a few epochs on synthetic frames, saved and exported in every precision."""
+    frames = make_frames(40, seed=4)
+    config = ModelConfig(image_size=16, conv_channels=(4, 4), hidden_features=16, camera_features=12,
+                         fusion_rank=None)
+    scale = torch.tensor([0.01, 0.005, 0.1])
+    model = build_model(config, frames.camera_ids, 3, 4, scale, seed=0)
+    fit(model, ImageSource(frames.subset(np.arange(32)), scale), ImageSource(frames.subset(np.arange(32, 40)), scale),
+        TrainConfig(max_epochs=3, batch_size=4, learning_rate=1e-2))
+    out = tmp_path_factory.mktemp("model")
+    save_model(model, out, "synthetic")
+    export_onnx(model, out / ONNX_FILES["fp32"])
+    export_onnx(model, out / ONNX_FILES["fp16"], "fp16")
+    quantize_int8(out / ONNX_FILES["fp32"], out / ONNX_FILES["int8"], frames.images[:16], frames.reference)
+    return out, frames
+
+
+def test_exported_graphs_pass_the_onnx_checker_and_keep_the_interface(model_dir):
+    out, _ = model_dir
+    for name in ONNX_FILES.values():
+        proto = onnx.load(str(out / name))
+        onnx.checker.check_model(proto, full_check=True)
+        assert [i.name for i in proto.graph.input] == ["images", "reference"]
+        assert proto.graph.input[0].type.tensor_type.elem_type == onnx.TensorProto.UINT8
+        assert proto.graph.output[0].type.tensor_type.elem_type == onnx.TensorProto.FLOAT
+
+
+def test_onnxruntime_equals_torch_within_1e_5_newton_per_bin(model_dir):
+    out, frames = model_dir
+    ort = load_predictor(out, "onnxruntime", "fp32")
+    pt = load_predictor(out, "torch", "fp32")
+    assert isinstance(ort, OnnxRuntimePredictor) and isinstance(pt, TorchPredictor)
+    a = ort.predict_batch(frames.images, frames.reference)
+    b = pt.predict_batch(frames.images, frames.reference)
+    assert a.shape == b.shape == (len(frames), 3, 4, 3) and a.dtype == np.float32
+    assert np.abs(a).max() > 1e-3  # the comparison is not between two zero maps
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-5)
+    single = ort.predict(frames.images[0], frames.reference)
+    np.testing.assert_allclose(single, a[0], rtol=0, atol=1e-6)
+
+
+def test_int8_keeps_the_fusion_layer_in_float_and_stays_close(model_dir):
+    out, frames = model_dir
+    proto = onnx.load(str(out / ONNX_FILES["int8"]))
+    assert any(n.op_type == "QuantizeLinear" for n in proto.graph.node)
+    fused = set(fusion_node_names(out / ONNX_FILES["fp32"]))
+    quantized_inputs = {i for n in proto.graph.node if n.op_type == "DequantizeLinear" for i in n.output}
+    for node in proto.graph.node:
+        if node.name in fused and node.op_type in ("Gemm", "MatMul"):
+            assert not quantized_inputs & set(node.input[1:]), f"{node.name} has int8 weights"
+    fp32 = load_predictor(out, "onnxruntime", "fp32").predict_batch(frames.images, frames.reference)
+    for precision, bound in (("int8", 0.05), ("fp16", 0.005)):
+        low = load_predictor(out, "onnxruntime", precision).predict_batch(frames.images, frames.reference)
+        assert np.isfinite(low).all()
+        # Relative to the largest predicted force: the shipped model's measured errors are in metrics.json.
+        assert np.abs(low - fp32).max() <= bound * np.abs(fp32).max(), precision
+    half = load_predictor(out, "torch", "fp16").predict_batch(frames.images, frames.reference)
+    assert np.abs(half - fp32).max() <= 0.005 * np.abs(fp32).max()
+
+
+def test_float_grey_levels_give_the_uint8_result_and_camera_order_can_be_named(model_dir):
+    out, frames = model_dir
+    predictor = load_predictor(out)
+    images, reference = frames.images[3], frames.reference
+    expected = predictor.predict(images, reference)
+    np.testing.assert_array_equal(predictor.predict(images.astype(np.float32), reference.astype(np.float64)),
+                                  expected)
+    swapped = predictor.predict(images[::-1], reference[::-1], camera_ids=CAMERAS[::-1])
+    np.testing.assert_array_equal(swapped, expected)
+
+
+def test_a_camera_marked_broken_reports_no_contact(model_dir):
+    out, frames = model_dir
+    predictor = load_predictor(out)
+    images, reference = frames.images[5].copy(), frames.reference
+    images[1] = 0  # a black frame from a dropped camera
+    masked = predictor.predict(images, reference, camera_ok=np.array([True, False]))
+    substituted = images.copy()
+    substituted[1] = reference[1]
+    np.testing.assert_array_equal(masked, predictor.predict(substituted, reference))
+    with pytest.raises(InputError, match="camera_ok"):
+        predictor.predict_batch(frames.images[:2], reference, camera_ok=np.ones(2, dtype=bool))
+
+
+@pytest.mark.parametrize("backend", ["onnxruntime", "torch"])
+def test_bad_inputs_raise_clear_errors_and_never_return_nan(model_dir, backend):
+    out, frames = model_dir
+    predictor = load_predictor(out, backend)
+    images, reference = frames.images[0], frames.reference
+    broken = images.astype(np.float32)
+    broken[1, 4, 7] = np.nan
+    with pytest.raises(InputError, match=r"images: contains NaN.*index \(1, 4, 7\)"):
+        predictor.predict(broken, reference)
+    with pytest.raises(InputError, match=r"reference: float grey levels must lie in \[0, 255\]"):
+        predictor.predict(images, reference.astype(np.float32) * 2.0)
+    with pytest.raises(InputError, match=r"images: expected shape \(2, 16, 16\)"):
+        predictor.predict(images[:1], reference)
+    with pytest.raises(InputError, match=r"expected shape \('B', 2, 16, 16\)"):
+        predictor.predict_batch(images, reference)
+    with pytest.raises(InputError, match="expected uint8"):
+        predictor.predict(images.astype(np.int32), reference)
+    with pytest.raises(InputError, match="numpy array"):
+        predictor.predict(images.tolist(), reference)
+    with pytest.raises(InputError, match=r"unknown cameras \['cam9'\]"):
+        predictor.predict(images, reference, camera_ids=("left", "cam9"))
+    with pytest.raises(InputError, match="once"):
+        predictor.predict(images, reference, camera_ids=("left", "left"))
+
+
+@pytest.mark.parametrize("level", [0, 255])
+def test_black_and_saturated_frames_give_finite_forces_in_every_precision(model_dir, level):
+    out, frames = model_dir
+    frame = np.full_like(frames.images[0], level)
+    for backend, precision in (("onnxruntime", "fp32"), ("onnxruntime", "int8"), ("onnxruntime", "fp16"),
+                               ("torch", "fp16")):
+        assert np.isfinite(load_predictor(out, backend, precision).predict(frame, frames.reference)).all()
+
+
+def test_missing_model_and_unknown_backend_are_explained(tmp_path, model_dir):
+    with pytest.raises(ModelFileError, match="tactile-fusion train"):
+        load_predictor(tmp_path)
+    out, _ = model_dir
+    with pytest.raises(ValueError, match="supports precisions"):
+        load_predictor(out, "torch", "int8")
+    with pytest.raises(ValueError, match="backend must be one of"):
+        load_predictor(out, "tensorrt")
+
+
+def test_saved_model_reloads_identically(model_dir, tmp_path):
+    out, frames = model_dir
+    model = load_model(out)
+    save_model(model, tmp_path)
+    again = load_model(tmp_path)
+    assert isinstance(again, ForceFusionNet) and again.camera_ids == CAMERAS
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, again.state_dict()[key])

@@ -1,0 +1,143 @@
+"""The network: shapes from the sensor description, shared CNN over all cameras, safe scaling, hard inputs."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tactile_description import load_sensor
+from tactile_fusion.model import (
+    ForceFusionNet,
+    FusionLayer,
+    ModelConfig,
+    difference_images,
+    force_scale_from_targets,
+)
+from tactile_fusion.training import rmse_loss
+
+CONFIG = Path(__file__).resolve().parents[3] / "config"
+
+
+@pytest.mark.parametrize("sensor_file", ["sensor.yaml", "skin_3x3.yaml"])
+def test_shapes_follow_the_sensor_description(sensor_file):
+    sensor = load_sensor(CONFIG / sensor_file)
+    size = sensor.cameras[0].output_size[0]
+    model = ForceFusionNet(ModelConfig(image_size=size), sensor.camera_ids, sensor.grid.rows, sensor.grid.cols).eval()
+    images = torch.randint(0, 256, (2, sensor.n_cameras, size, size), dtype=torch.uint8)
+    reference = torch.randint(0, 256, (sensor.n_cameras, size, size), dtype=torch.uint8)
+    with torch.no_grad():
+        out = model(images, reference)
+    assert out.shape == (2, sensor.grid.rows, sensor.grid.cols, 3)
+    assert out.dtype == torch.float32
+    assert model.fusion.expand.out_features == sensor.grid.n_bins * 3
+    first = model.fusion.reduce if model.fusion.reduce is not None else model.fusion.expand
+    in_features = first.in_features
+    assert in_features == 300 * sensor.n_cameras
+
+
+def test_all_cameras_of_all_frames_go_through_the_cnn_as_one_batch(tiny_config):
+    model = ForceFusionNet(tiny_config, ("a", "b", "c"), 3, 4).eval()
+    calls = []
+    model.cnn.register_forward_hook(lambda module, inputs, output: calls.append(inputs[0].shape))
+    with torch.no_grad():
+        model(torch.zeros(5, 3, 16, 16, dtype=torch.uint8), torch.zeros(3, 16, 16, dtype=torch.uint8))
+    assert calls == [(15, 1, 16, 16)]
+
+
+def test_cnn_is_shared_so_swapping_cameras_swaps_feature_blocks(tiny_config):
+    model = ForceFusionNet(tiny_config, ("a", "b"), 3, 4).eval()
+    rng = np.random.default_rng(1)
+    images = torch.from_numpy(rng.integers(0, 256, (1, 2, 16, 16), dtype=np.uint8))
+    reference = torch.from_numpy(rng.integers(0, 256, (2, 16, 16), dtype=np.uint8))
+    with torch.no_grad():
+        features = model.cnn(difference_images(images, reference).reshape(2, 1, 16, 16))
+        swapped = model.cnn(difference_images(images[:, [1, 0]], reference[[1, 0]]).reshape(2, 1, 16, 16))
+    torch.testing.assert_close(features, swapped[[1, 0]])
+
+
+def test_difference_is_computed_in_float_without_uint8_wrap_around():
+    images = torch.tensor([[[[250, 4]]]], dtype=torch.uint8)
+    reference = torch.tensor([[[10, 250]]], dtype=torch.uint8)
+    diff = difference_images(images, reference)
+    torch.testing.assert_close(diff, torch.tensor([[[[240.0, -246.0]]]]) / 255.0)
+
+
+def test_force_scale_is_finite_and_positive_when_most_bins_are_zero():
+    forces = torch.zeros(10, 3, 4, 3)
+    forces[0, 1, 2, 2] = 0.3          # one loaded bin in one sample; fx, fy zero everywhere
+    scale = force_scale_from_targets(forces)
+    assert torch.isfinite(scale).all() and (scale > 0).all()
+    assert scale[2] == pytest.approx(0.3 / np.sqrt(10 * 12), rel=1e-5)
+    assert scale[0] == pytest.approx(0.01 * float(scale[2]), rel=1e-5)  # floored, not zero
+    normalised = forces / scale
+    assert torch.isfinite(normalised).all()
+
+
+def test_force_scale_of_all_zero_data_is_one():
+    torch.testing.assert_close(force_scale_from_targets(torch.zeros(4, 2, 2, 3)), torch.ones(3))
+
+
+def test_forward_returns_newtons_through_the_force_scale(tiny_config):
+    scale = torch.tensor([0.001, 0.002, 0.05])
+    model = ForceFusionNet(tiny_config, ("a",), 2, 2, scale).eval()
+    images = torch.randint(0, 256, (3, 1, 16, 16), dtype=torch.uint8)
+    reference = torch.randint(0, 256, (1, 16, 16), dtype=torch.uint8)
+    with torch.no_grad():
+        normalised = model.forward_normalised(difference_images(images, reference))
+        torch.testing.assert_close(model(images, reference), normalised * scale)
+
+
+@pytest.mark.parametrize("level", [0, 255])
+def test_all_black_and_saturated_frames_give_finite_forces(tiny_config, level):
+    model = ForceFusionNet(tiny_config, ("a", "b"), 3, 4).eval()
+    reference = torch.randint(0, 256, (2, 16, 16), dtype=torch.uint8)
+    with torch.no_grad():
+        out = model(torch.full((1, 2, 16, 16), level, dtype=torch.uint8), reference)
+    assert torch.isfinite(out).all()
+
+
+def test_constant_input_and_batch_of_one_in_training_mode_stay_finite(tiny_config):
+    """BatchNorm in training mode sees zero variance (constant difference image, one frame): eps keeps it finite."""
+    model = ForceFusionNet(tiny_config, ("a", "b"), 3, 4).train()
+    frame = torch.full((1, 2, 16, 16), 77, dtype=torch.uint8)
+    reference = torch.full((2, 16, 16), 77, dtype=torch.uint8)
+    out = model(frame, reference)
+    loss = rmse_loss(out, torch.zeros_like(out))
+    loss.backward()
+    assert torch.isfinite(out).all() and torch.isfinite(loss)
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+
+
+def test_factored_fusion_is_one_linear_map_of_limited_rank():
+    layer = FusionLayer(12, 30, rank=3)
+    x = torch.randn(5, 12)
+    y = torch.randn(5, 12)
+    with torch.no_grad():
+        torch.testing.assert_close(layer(x + 2 * y) - layer(torch.zeros(1, 12)),
+                                   (layer(x) - layer(torch.zeros(1, 12))) + 2 * (layer(y) - layer(torch.zeros(1, 12))))
+        matrix = layer(torch.eye(12)) - layer(torch.zeros(1, 12))
+    assert torch.linalg.matrix_rank(matrix) == 3
+    assert FusionLayer(12, 30, rank=None).reduce is None
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(image_size=100, conv_channels=(4, 4, 4)), "divisible"),
+    (dict(dropout=1.0), "dropout"),
+    (dict(fusion_rank=0), "fusion_rank"),
+])
+def test_bad_model_config_is_rejected_with_a_clear_error(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ModelConfig(**kwargs)
+
+
+def test_bad_camera_ids_and_force_scale_are_rejected(tiny_config):
+    with pytest.raises(ValueError, match="unique"):
+        ForceFusionNet(tiny_config, ("a", "a"), 3, 4)
+    with pytest.raises(ValueError, match="force_scale_n"):
+        ForceFusionNet(tiny_config, ("a",), 3, 4, torch.tensor([1.0, 0.0, 1.0]))
+
+
+def test_config_round_trips_through_a_dict():
+    config = ModelConfig(conv_channels=(2, 4, 8), fusion_rank=None)
+    assert ModelConfig.from_dict(config.to_dict()) == config

@@ -1,0 +1,129 @@
+"""The training loop: finite loss, learning, reproducibility, early stopping, checkpoints and resume."""
+
+import numpy as np
+import pytest
+import torch
+
+from tactile_fusion.data import split_indices
+from tactile_fusion.model import force_scale_from_targets
+from tactile_fusion.sources import ImageSource
+from tactile_fusion.training import TrainConfig, build_model, epoch_batches, fit, rmse_loss
+
+
+def sources(frames):
+    split = split_indices(len(frames), seed=3)
+    train, val = frames.subset(split["train"]), frames.subset(split["val"])
+    scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
+    return ImageSource(train, scale), ImageSource(val, scale), scale
+
+
+def trained(frames, config, train_config, **kwargs):
+    train, val, scale = sources(frames)
+    model = build_model(config, frames.camera_ids, 3, 4, scale, train_config.seed)
+    result = fit(model, train, val, train_config, **kwargs)
+    return model, result
+
+
+def same_weights(a, b) -> bool:
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
+def test_rmse_gradient_is_finite_and_zero_at_zero_error():
+    prediction = torch.zeros(4, 3, requires_grad=True)
+    loss = rmse_loss(prediction, torch.zeros(4, 3))
+    loss.backward()
+    assert torch.isfinite(loss)
+    assert torch.equal(prediction.grad, torch.zeros(4, 3))
+
+
+def test_rmse_matches_the_definition_away_from_zero():
+    prediction, target = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([1.0, 0.0, 0.0])
+    assert float(rmse_loss(prediction, target, eps=1e-12)) == pytest.approx(np.sqrt(13 / 3), rel=1e-6)
+
+
+def test_training_lowers_the_validation_error(frames, tiny_config):
+    config = TrainConfig(max_epochs=10, batch_size=4, learning_rate=1e-2, patience=10)
+    model, result = trained(frames, tiny_config, config)
+    assert result.best_val_rmse < 0.9 * result.initial_val_rmse
+    assert result.history[-1]["train_rmse"] < 0.95 * result.history[0]["train_rmse"]
+    assert len(result.history) == result.epochs_run == 10
+    assert all(np.isfinite([h["train_rmse"] for h in result.history]))
+
+
+def test_same_seed_gives_the_same_weights_and_another_seed_does_not(frames, tiny_config):
+    config = TrainConfig(max_epochs=2, batch_size=8, seed=5)
+    a, _ = trained(frames, tiny_config, config)
+    b, _ = trained(frames, tiny_config, config)
+    c, _ = trained(frames, tiny_config, TrainConfig(max_epochs=2, batch_size=8, seed=6))
+    assert same_weights(a, b)
+    assert not same_weights(a, c)
+
+
+def test_interrupted_and_resumed_training_equals_an_uninterrupted_run(frames, tiny_config, tmp_path):
+    config = TrainConfig(max_epochs=5, batch_size=8, learning_rate=5e-3, seed=2)
+    uninterrupted, full = trained(frames, tiny_config, config)
+
+    class Interrupt(Exception):
+        pass
+
+    def stop_after_two(epoch, record):
+        if epoch == 2:
+            raise Interrupt
+
+    checkpoint = tmp_path / "checkpoint.pt"
+    with pytest.raises(Interrupt):
+        trained(frames, tiny_config, config, checkpoint_path=checkpoint, on_epoch_end=stop_after_two)
+    assert checkpoint.exists()
+    resumed, result = trained(frames, tiny_config, config, checkpoint_path=checkpoint, resume=True)
+    assert same_weights(uninterrupted, resumed)
+    assert [h["val_rmse"] for h in result.history] == [h["val_rmse"] for h in full.history]
+
+
+def test_resuming_with_other_settings_is_refused(frames, tiny_config, tmp_path):
+    checkpoint = tmp_path / "checkpoint.pt"
+    trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=8), checkpoint_path=checkpoint)
+    with pytest.raises(ValueError, match="same settings"):
+        trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=4), checkpoint_path=checkpoint, resume=True)
+
+
+def test_early_stopping_keeps_the_best_epoch(frames, tiny_config):
+    # A learning rate this large makes the validation error jump around: training stops after `patience`
+    # epochs without improvement and restores the best weights seen.
+    config = TrainConfig(max_epochs=30, batch_size=4, learning_rate=0.5, patience=2, lr_patience=30)
+    model, result = trained(frames, tiny_config, config)
+    assert result.stopped_early and result.epochs_run < 30
+    assert result.epochs_run - result.best_epoch == 2
+    _, val, _ = sources(frames)
+    from tactile_fusion.training import normalised_rmse
+
+    assert normalised_rmse(model, val) == pytest.approx(result.best_val_rmse, rel=1e-5)
+
+
+def test_batch_of_one_zero_bins_and_zero_error_stay_finite(frames, tiny_config):
+    """Batch size 1 (BatchNorm over one frame), and targets that are zero in every bin and sample."""
+    zero = frames.subset(np.arange(len(frames)))
+    zero.bin_forces_n[...] = 0.0
+    model, result = trained(zero, tiny_config, TrainConfig(max_epochs=1, batch_size=1))
+    assert np.isfinite(result.best_val_rmse)
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    # A batch the model already predicts exactly: the loss gradient is zero, not NaN.
+    model.train()
+    train, _, scale = sources(zero)
+    prediction = train.predict(model, np.arange(3))
+    loss = rmse_loss(prediction, prediction.detach())
+    loss.backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+
+
+def test_epoch_batches_cover_every_frame_once_and_depend_on_seed_and_epoch():
+    batches = epoch_batches(10, 3, seed=1, epoch=1)
+    assert sorted(np.concatenate(batches)) == list(range(10))
+    assert [len(b) for b in batches] == [3, 3, 3, 1]
+    assert np.array_equal(np.concatenate(batches), np.concatenate(epoch_batches(10, 3, seed=1, epoch=1)))
+    assert not np.array_equal(np.concatenate(batches), np.concatenate(epoch_batches(10, 3, seed=1, epoch=2)))
+
+
+def test_bad_train_config_is_rejected():
+    with pytest.raises(ValueError, match="batch_size"):
+        TrainConfig(batch_size=0)
