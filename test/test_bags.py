@@ -19,8 +19,8 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
-from tactile_bag.bagfile import BagReader
 
+from tactile_bag.bagfile import BagReader
 from tactile_bringup.graph import NodeSpec
 from tactile_bringup.processes import start_node, stop_nodes
 from tactile_description import default_sensor_path, load_sensor
