@@ -28,10 +28,10 @@ class ModelConfig:
 
     image_size: int = 128                       # square model image (pixels), the sensor's output size
     conv_channels: tuple[int, ...] = (4, 8, 16, 16)  # one conv block (conv, BN, ReLU, 2x max pool) per entry
-    hidden_features: int = 128                  # first fully connected layer of the shared CNN
+    hidden_features: int = 256                  # first fully connected layer of the shared CNN
     camera_features: int = 300                  # per-camera features (the paper's 300)
     dropout: float = 0.1
-    fusion_rank: int | None = 96                # None: one dense matrix; else a rank-limited linear map
+    fusion_rank: int | None = 192               # None: one dense matrix; else a rank-limited linear map
 
     def __post_init__(self):
         pooled = self.image_size // 2 ** len(self.conv_channels)
@@ -123,9 +123,9 @@ class FusionLayer(nn.Module):
     """Linear map from the concatenated camera features to normalised bin forces.
 
     With `rank` set, the matrix is stored as a product of two thin matrices (still one linear map, of rank
-    <= `rank`): for the reference sensor a dense 1200 x 1950 matrix is 2.3 M weights (9 MB), the factored
-    one at rank 96 is 0.3 M, trains faster and fits the smooth, low-dimensional force maps as well
-    (docs/learning.md).
+    <= `rank`): for the reference sensor a dense 1200 x 1950 matrix is 2.3 M weights (9 MB per stored copy),
+    the factored one at rank 192 is 0.6 M. The rank costs some accuracy (force maps of presses anywhere on the
+    surface are not a low-dimensional set; docs/learning.md has the measurements).
     """
 
     def __init__(self, in_features: int, out_features: int, rank: int | None):

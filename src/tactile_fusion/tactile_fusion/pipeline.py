@@ -26,7 +26,7 @@ from tactile_fusion.export import export_onnx, quantize_int8
 from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
 from tactile_fusion.plots import plot_fz_maps
-from tactile_fusion.training import TrainConfig, build_model, train_phases
+from tactile_fusion.training import TrainConfig, TrainResult, build_model, train_phases
 from tactile_sim import load_scene
 
 DEFAULT_SCENE = "paper_grid"
@@ -126,8 +126,9 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
         "data": {"source": data_source, "scene": frames.scene, "seed": frames.seed, "frames": len(frames),
                  "split_sizes": {k: len(v) for k, v in split.items()}},
         "sensor": sensor.name,
-        "phases": {phase: result.to_dict() for phase, result in results.items()},
-        "wall_time_s": {"training": training_wall_s, **{p: r.wall_time_s for p, r in results.items()}},
+        "phases": {p: r.to_dict() if isinstance(r, TrainResult) else r for p, r in results.items()},
+        "wall_time_s": {"training": training_wall_s,
+                        **{p: r.wall_time_s for p, r in results.items() if isinstance(r, TrainResult)}},
         "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
                     "torch": torch.__version__},
     })

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from tactile_fusion.data import FrameSet
+from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ForceFusionNet
 from tactile_fusion.sources import CachedSource
@@ -55,12 +56,14 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
                 progress: bool = False) -> tuple[ForceFusionNet, TrainResult, float]:
     """Add the cameras of `train` that `base` lacks and retrain the last CNN layer and the fusion layer.
 
-    Returns the model, the training result and the wall time in seconds, feature caching included.
+    As in full training, the gradient phase ends with the least-squares fit of the fusion layer. Returns the
+    model, the training result and the wall time in seconds, feature caching included.
     """
     started = time.perf_counter()
     model = add_camera(base, train.camera_ids)
-    result = fit(model, CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden"), config,
-                 progress=progress, desc="recalibrate")
+    cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
+    result = fit(model, cached_train, cached_val, config, progress=progress, desc="recalibrate")
+    fit_fusion(model, cached_train, cached_val)
     return model, result, time.perf_counter() - started
 
 

@@ -31,9 +31,15 @@ class ImageSource:
     def __len__(self) -> int:
         return len(self.frames)
 
-    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+    def features_at(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+        """(B * C, camera_features) CNN features of the frames at `indices`, frame-major."""
         images = torch.from_numpy(np.asarray(self.frames.images[np.sort(indices)]))
-        return model.forward_normalised(difference_images(images, self.reference))
+        difference = difference_images(images, self.reference)
+        b, c, h, w = difference.shape
+        return model.cnn(difference.reshape(b * c, 1, h, w))
+
+    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+        return model.fuse(self.features_at(model, indices))
 
     def target(self, indices: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.asarray(self.frames.bin_forces_n[np.sort(indices)])) / self.force_scale_n
@@ -68,12 +74,29 @@ class CachedSource:
     def __len__(self) -> int:
         return len(self.features)
 
-    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+    def features_at(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+        """(B * C, camera_features) CNN features of the frames at `indices`, from the cache."""
         x = self.features[np.sort(indices)]
         b, c, n = x.shape
         x = x.reshape(b * c, n)
         x = model.cnn.first_layer(x) if self.cut == "trunk" else model.cnn.first_layer.dropout(x)
-        return model.fuse(model.cnn.last_layer(x))
+        return model.cnn.last_layer(x)
+
+    def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
+        return model.fuse(self.features_at(model, indices))
 
     def target(self, indices: np.ndarray) -> torch.Tensor:
         return self.targets[np.sort(indices)] / self.force_scale_n
+
+
+@torch.no_grad()
+def normalised_rmse(model: ForceFusionNet, source, batch_size: int = 64) -> float:
+    """RMSE over all frames of `source` (normalised forces), evaluation mode."""
+    model.eval()
+    total, count = 0.0, 0
+    for start in range(0, len(source), batch_size):
+        idx = np.arange(start, min(start + batch_size, len(source)))
+        err = source.predict(model, idx) - source.target(idx)
+        total += float(torch.sum(err.double() ** 2))
+        count += err.numel()
+    return float(np.sqrt(total / max(count, 1)))

@@ -22,20 +22,22 @@ from torch import nn
 from tqdm import tqdm
 
 from tactile_fusion.data import FrameSet
+from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.model import ForceFusionNet, ModelConfig
-from tactile_fusion.sources import CachedSource, ImageSource
+from tactile_fusion.sources import CachedSource, ImageSource, normalised_rmse
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     """How to train. Two runs with the same config, data and seed give the same weights.
 
-    Training has two phases (`train_phases`): end-to-end for up to `max_epochs`, then the head (fully
+    Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully
     connected layers and fusion) alone for up to `head_epochs` on cached conv features, which costs about
-    1/40 of an end-to-end epoch. Each phase stops early after `patience` epochs without a better validation RMSE.
+    1/40 of an end-to-end epoch; then the exact least-squares fit of the linear fusion layer (least_squares.py).
+    Each gradient phase stops early after `patience` epochs without a better validation RMSE.
     """
 
-    max_epochs: int = 80
+    max_epochs: int = 30
     batch_size: int = 16          # frames per step; each brings all its cameras through the CNN
     learning_rate: float = 2e-3
     patience: int = 12            # early stopping: epochs without a better validation RMSE
@@ -43,7 +45,7 @@ class TrainConfig:
     min_learning_rate: float = 1e-5
     seed: int = 0
     loss_eps: float = 1e-8        # RMSE = sqrt(MSE + eps): finite gradient at zero error
-    head_epochs: int = 0          # second phase: conv trunk frozen, head trained on cached features
+    head_epochs: int = 60         # second phase: conv trunk frozen, head trained on cached features
     head_learning_rate: float = 2e-3
 
     def __post_init__(self):
@@ -105,19 +107,6 @@ def epoch_batches(n: int, batch_size: int, seed: int, epoch: int) -> list[np.nda
     """The shuffled batches of one epoch, a function of (seed, epoch) only, so a resumed run repeats them."""
     order = np.random.default_rng([seed, epoch]).permutation(n)
     return [order[i:i + batch_size] for i in range(0, n, batch_size)]
-
-
-@torch.no_grad()
-def normalised_rmse(model: ForceFusionNet, source: BatchSource, batch_size: int = 64) -> float:
-    """RMSE over all frames of `source` (normalised forces), evaluation mode."""
-    model.eval()
-    total, count = 0.0, 0
-    for start in range(0, len(source), batch_size):
-        idx = np.arange(start, min(start + batch_size, len(source)))
-        err = source.predict(model, idx) - source.target(idx)
-        total += float(torch.sum(err.double() ** 2))
-        count += err.numel()
-    return float(np.sqrt(total / max(count, 1)))
 
 
 def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
@@ -188,28 +177,34 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
 
 def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: TrainConfig,
                  checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool = False,
-                 on_epoch_end: Callable[[int, dict], None] | None = None) -> dict[str, TrainResult]:
-    """End-to-end training, then (if config.head_epochs) the head alone on cached conv-trunk features.
+                 on_epoch_end: Callable[[int, dict], None] | None = None) -> dict:
+    """End-to-end training; then (if config.head_epochs) the head alone on cached conv-trunk features; then the
+    least-squares fit of the fusion layer.
 
-    Why two phases: an end-to-end step spends almost all its time in the convolutions at full resolution,
-    while the head (sigmoid layers and fusion) needs many more epochs than the conv filters to converge; with
-    the trunk frozen its output is computed once and a head epoch costs about 1/40 of an end-to-end one.
-    Each phase keeps its own checkpoint in `checkpoint_dir`, so an interrupted run resumes in either phase.
-    Returns {"end_to_end": result, "head": result} ("head" only when it ran).
+    Why phases: an end-to-end step spends almost all its time in the convolutions at full resolution, while
+    the head (sigmoid layers and fusion) needs many more epochs than the conv filters to converge; with the
+    trunk frozen its output is computed once and a head epoch costs about 1/40 of an end-to-end one. And the
+    fusion layer is linear: its exact least-squares weights for the final features beat what gradient steps
+    reach (docs/learning.md). Each gradient phase keeps its own checkpoint in `checkpoint_dir`, so an
+    interrupted run resumes in either phase (the least-squares fit is deterministic and takes seconds).
+    Returns {"end_to_end": TrainResult, "head": TrainResult (when it ran), "fusion_fit": least-squares report}.
     """
     checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
     scale = model.force_scale_n
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
                                  desc="train end-to-end")}
+    cached_train, cached_val = CachedSource(model, train, "trunk"), CachedSource(model, val, "trunk")
     if config.head_epochs:
         model.cnn.trunk.requires_grad_(False)
         try:
-            results["head"] = fit(model, CachedSource(model, train, "trunk"), CachedSource(model, val, "trunk"),
-                                  config.head_phase(), _phase_checkpoint(checkpoint_dir, "head"), resume, progress,
-                                  on_epoch_end, desc="train head")
+            results["head"] = fit(model, cached_train, cached_val, config.head_phase(),
+                                  _phase_checkpoint(checkpoint_dir, "head"), resume, progress, on_epoch_end,
+                                  desc="train head")
         finally:
             model.cnn.trunk.requires_grad_(True)
+    results["fusion_fit"] = fit_fusion(model, cached_train, cached_val)
+    model.eval()
     return results
 
 

@@ -37,7 +37,7 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     assert not list(out.glob("checkpoint_*.pt"))
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
-    assert set(training["phases"]) == {"end_to_end", "head"}
+    assert set(training["phases"]) == {"end_to_end", "head", "fusion_fit"}
     metrics = json.loads((out / METRICS_JSON).read_text())
     assert set(metrics["backends"]) == {"onnxruntime_fp32", "onnxruntime_int8", "onnxruntime_fp16", "torch_fp32",
                                         "torch_fp16"}

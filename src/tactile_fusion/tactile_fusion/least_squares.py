@@ -1,0 +1,85 @@
+"""Closed-form fit of the linear fusion layer on the CNN's features (ridge regression).
+
+The fusion layer is linear, so for fixed camera features its best weights solve a least-squares problem
+exactly. Gradient training leaves this layer far from that optimum in the time we have (measured in
+docs/learning.md: the same features give a clearly lower error with the exact solution), so training ends
+with this fit:
+
+    W = argmin ||X W - Y||^2 + ridge ||W||^2  =  (X^T X + ridge I)^-1 X^T Y      (Hoerl & Kennard 1970)
+
+X: (N, C * camera_features + 1) features of the training frames in evaluation mode, with a column of ones for
+the bias (not penalised); Y: (N, rows * cols * 3) normalised forces. The ridge is chosen on the validation
+frames. For a rank-limited fusion layer the solution is projected onto the `rank` leading right singular
+vectors of the fitted values X W (reduced-rank regression, Izenman 1975), which is the best rank-r fit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tactile_fusion.model import ForceFusionNet
+from tactile_fusion.sources import normalised_rmse
+
+#: Candidate ridges, relative to the number of training frames; features lie in (0, 1).
+RIDGES = (1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
+
+
+@torch.no_grad()
+def camera_features(model: ForceFusionNet, source, batch_size: int = 256) -> tuple[torch.Tensor, torch.Tensor]:
+    """(features (N, C * camera_features) float64, targets (N, rows * cols * 3) float64) of a CachedSource or
+    ImageSource, evaluation mode (no dropout, batch-norm running statistics)."""
+    model.eval()
+    features, targets = [], []
+    for start in range(0, len(source), batch_size):
+        idx = np.arange(start, min(start + batch_size, len(source)))
+        features.append(source.features_at(model, idx).reshape(len(idx), -1).double())
+        targets.append(source.target(idx).reshape(len(idx), -1).double())
+    return torch.cat(features), torch.cat(targets)
+
+
+def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[float, ...] = RIDGES) -> dict:
+    """Set the fusion layer of `model` to the ridge solution whose validation RMSE is lowest.
+
+    Returns {"ridge": chosen value, "val_rmse": {ridge: normalised validation RMSE}, "val_rmse_before": the
+    gradient-trained layer's}. If no ridge beats the layer as it was, the layer is left unchanged.
+    """
+    before = normalised_rmse(model, val_source)
+    x, y = camera_features(model, train_source)
+    xv, yv = camera_features(model, val_source)
+    ones = torch.ones(len(x), 1, dtype=x.dtype)
+    design = torch.cat([x, ones], dim=1)
+    gram = design.T @ design
+    rhs = design.T @ y
+    penalty = torch.eye(len(gram), dtype=x.dtype)
+    penalty[-1, -1] = 0.0  # the bias is not shrunk
+    rank = model.fusion.reduce.out_features if model.fusion.reduce is not None else None
+    scores, solutions = {}, {}
+    for ridge in ridges:
+        weights = torch.linalg.solve(gram + ridge * len(x) * penalty, rhs)       # (F + 1, O)
+        if rank is not None:
+            _, _, vt = torch.linalg.svd(design @ weights, full_matrices=False)
+            basis = vt[:rank]                                                    # (r, O)
+            weights = weights @ basis.T @ basis
+        prediction = torch.cat([xv, torch.ones(len(xv), 1, dtype=x.dtype)], dim=1) @ weights
+        scores[ridge] = float(torch.sqrt(torch.mean((prediction - yv) ** 2)))
+        solutions[ridge] = (weights, basis if rank is not None else None)
+    best = min(scores, key=scores.get)
+    if scores[best] < before:
+        _assign(model, *solutions[best])
+    return {"ridge": best if scores[best] < before else None, "val_rmse": {str(k): v for k, v in scores.items()},
+            "val_rmse_before": before}
+
+
+def _assign(model: ForceFusionNet, weights: torch.Tensor, basis: torch.Tensor | None) -> None:
+    """Write a (F + 1, O) solution (last row: bias) into the fusion layer, factored through `basis` if given."""
+    matrix, bias = weights[:-1], weights[-1]
+    fusion = model.fusion
+    with torch.no_grad():
+        if basis is None:
+            fusion.expand.weight.copy_(matrix.T.float())
+            fusion.expand.bias.copy_(bias.float())
+        else:
+            fusion.reduce.weight.copy_((matrix @ basis.T).T.float())            # (r, F)
+            fusion.expand.weight.copy_(basis.T.float())                         # (O, r)
+            fusion.expand.bias.copy_(bias.float())
