@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -180,15 +181,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tactile-fusion", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def common(p, with_model: bool):
+    def common(p, with_model: bool, threads: int = 1):
         p.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
-        p.add_argument("--threads", type=int, default=1, help="CPU threads (default %(default)s)")
+        p.add_argument("--threads", type=int, default=threads, help="CPU threads (default %(default)s)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         if with_model:
             p.add_argument("--model", help="model directory (default: the shipped model)")
 
     p = sub.add_parser("train", help="train a model from the simulator or a dataset, export it, evaluate it")
-    common(p, False)
+    common(p, False, threads=os.cpu_count() or 1)
     _training_options(p)
     p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out")
     p.set_defaults(func=cmd_train)
@@ -207,7 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("recalibrate", help="train with all cameras but one, add it by retraining the last layers; "
                        "sweep the data fraction")
-    common(p, False)
+    common(p, False, threads=os.cpu_count() or 1)
     _training_options(p)
     p.add_argument("--add-camera", help="the camera to add (default: the sensor's last camera)")
     p.add_argument("--fractions", default="0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0",

@@ -19,7 +19,7 @@ import onnx
 import torch
 from torch import nn
 
-from tactile_fusion.model import ForceFusionNet
+from tactile_fusion.model import ForceFusionNet, difference_images
 
 #: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
 OPSET = 17
@@ -28,14 +28,18 @@ OUTPUT_NAME = "bin_forces_n"
 
 
 class _Float16Graph(nn.Module):
-    """The model computed in float16 from the difference image on; uint8 in, float32 newtons out."""
+    """The model computed in float16 from the difference image on; uint8 in, float32 newtons out.
+
+    The difference (and its brightness gain, a sum over 16 384 pixels of up to 255^2) is computed in float32:
+    in float16 the sums would overflow above 65 504.
+    """
 
     def __init__(self, model: ForceFusionNet):
         super().__init__()
         self.model = copy_to_half(model)
 
     def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-        difference = (images.to(torch.float16) - reference.to(torch.float16)) / 255.0
+        difference = difference_images(images, reference).to(torch.float16)
         return (self.model.forward_normalised(difference) * self.model.force_scale_n).to(torch.float32)
 
 
@@ -69,12 +73,15 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
 
 def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration_images: np.ndarray,
                   reference: np.ndarray) -> Path:
-    """Static int8 quantization (QDQ, per-channel weights) of an exported fp32 graph.
+    """Static int8 quantization (QDQ, per-channel weights) of the CNN's fully connected layers.
 
-    calibration_images: (N, C, H, W) uint8 frames (training data) that set the activation ranges. The fusion
-    layer (the regression head: the MatMul/Gemm nodes after the last sigmoid) and the final scaling stay in
-    float: int8 steps of a head whose outputs span four orders of magnitude (most bins ~0, peaks ~0.3 N)
-    would swamp the small forces.
+    calibration_images: (N, C, H, W) uint8 frames (training data) that set the activation ranges.
+    What stays in float, and why (measured on the shipped model, docs/learning.md):
+    - the fusion layer (the regression head, the MatMul/Gemm nodes after the last sigmoid) and the final
+      scaling: int8 steps of a head whose outputs span four orders of magnitude (most bins ~0, peaks ~0.5 N)
+      would swamp the small forces;
+    - the convolutions: with 1 to 16 channels, ONNX Runtime's int8 convolution kernels are slower on x86 than
+      its float32 ones (1.7 ms against 0.6 ms per frame) and they added up to 0.14 N per bin of error.
     """
     from onnxruntime.quantization import (
         CalibrationDataReader,
@@ -99,7 +106,8 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration_imag
     try:
         quantize_static(str(prepared), str(int8_path), _Reader(), quant_format=QuantFormat.QDQ,
                         activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
-                        calibrate_method=CalibrationMethod.MinMax, nodes_to_exclude=fusion_node_names(prepared))
+                        calibrate_method=CalibrationMethod.MinMax, op_types_to_quantize=["MatMul", "Gemm"],
+                        nodes_to_exclude=fusion_node_names(prepared))
     finally:
         prepared.unlink(missing_ok=True)
     onnx.checker.check_model(onnx.load(str(int8_path)), full_check=True)

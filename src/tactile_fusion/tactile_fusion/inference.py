@@ -20,7 +20,7 @@ import torch
 
 from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, default_model_dir, load_model, read_model_json
 from tactile_fusion.export import copy_to_half
-from tactile_fusion.model import ForceFusionNet
+from tactile_fusion.model import ForceFusionNet, difference_images
 
 BACKENDS = {"onnxruntime": ("fp32", "int8", "fp16"), "torch": ("fp32", "fp16")}
 DEFAULT_THREADS = 1
@@ -134,7 +134,7 @@ class TorchPredictor(ForcePredictor):
 
     @torch.no_grad()
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
-        difference = (torch.from_numpy(images).to(self.dtype) - torch.from_numpy(reference).to(self.dtype)) / 255.0
+        difference = difference_images(torch.from_numpy(images), torch.from_numpy(reference)).to(self.dtype)
         normalised = self.model.forward_normalised(difference)
         return (normalised.float() * self.model.force_scale_n.float()).numpy()
 

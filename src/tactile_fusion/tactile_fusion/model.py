@@ -18,8 +18,12 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-#: Grey levels of a uint8 image: difference images are divided by this so they lie in [-1, 1].
+#: Grey levels of a uint8 image: difference images are divided by this so they lie in about [-1, 1].
 GREY_LEVELS = 255.0
+#: Pixels at this level or above are clipped by the camera and left out of the brightness gain.
+SATURATED = 255.0
+#: Brightness gains outside this range are clamped (a black or blinded camera gives no usable gain).
+GAIN_RANGE = (0.25, 4.0)
 
 
 @dataclass(frozen=True)
@@ -107,12 +111,19 @@ class CameraCNN(nn.Module):
         inputs = (1, *config.conv_channels[:-1])
         self.trunk = nn.Sequential(*(ConvBlock(c_in, c_out) for c_in, c_out in zip(inputs, config.conv_channels,
                                                                                       strict=True)))
+        # Channels-last convolutions run about 30 % faster on CPU (oneDNN); the values are the same.
+        self.trunk.to(memory_format=torch.channels_last)
         self.first_layer = FeatureLayer(config.flat_features, config.hidden_features, config.dropout)
         self.last_layer = FeatureLayer(config.hidden_features, config.camera_features, config.dropout)
 
     def hidden(self, difference: torch.Tensor) -> torch.Tensor:
         """(N, 1, H, W) difference images -> (N, hidden_features): everything before `last_layer`."""
-        return self.first_layer(torch.flatten(self.trunk(difference), 1))
+        return self.first_layer(self.conv_features(difference))
+
+    def conv_features(self, difference: torch.Tensor) -> torch.Tensor:
+        """(N, 1, H, W) difference images -> (N, flat_features): the flattened output of the conv trunk."""
+        trunk = self.trunk(difference.contiguous(memory_format=torch.channels_last))
+        return torch.flatten(trunk.contiguous(), 1)
 
     def forward(self, difference: torch.Tensor) -> torch.Tensor:
         """(N, 1, H, W) difference images in [-1, 1] -> (N, camera_features)."""
@@ -145,12 +156,27 @@ class FusionLayer(nn.Module):
 
 
 def difference_images(images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-    """Current minus reference image, in float (uint8 differences wrap around), scaled to [-1, 1].
+    """Gain-compensated difference of current and reference images, in float32, scaled to about [-1, 1].
 
     images: (B, C, H, W) uint8 or float grey levels; reference: (C, H, W) or (B, C, H, W), same kind.
-    Returns (B, C, H, W) float32.
+    Returns (B, C, H, W) float32: (images / gain - reference) / 255.
+
+    Computed in float (uint8 differences wrap around: 250 + 10 = 4). `gain` is each image's brightness relative
+    to its reference, the least-squares factor over the pixels that are not saturated,
+        gain = sum(current * reference) / sum(reference^2),
+    clamped to [1/4, 4]; an image without unsaturated pixels gets gain 1. LED flicker, illumination drift
+    and exposure changes scale a whole image; without this factor they look like pressure everywhere. A press
+    only moves particles, which leaves the factor within about 1e-3 of 1 (docs/learning.md).
     """
-    return (images.to(torch.float32) - reference.to(torch.float32)) / GREY_LEVELS
+    current = images.to(torch.float32)
+    reference = reference.to(torch.float32).expand_as(current)
+    unsaturated = (current < SATURATED).to(torch.float32)
+    weighted = reference * unsaturated
+    numerator = torch.sum(current * weighted, dim=(-2, -1), keepdim=True)
+    denominator = torch.sum(reference * weighted, dim=(-2, -1), keepdim=True)
+    gain = torch.where(denominator > 0, numerator / torch.clamp(denominator, min=1.0), torch.ones_like(numerator))
+    gain = torch.clamp(gain, GAIN_RANGE[0], GAIN_RANGE[1])
+    return (current / gain - reference) / GREY_LEVELS
 
 
 class ForceFusionNet(nn.Module):

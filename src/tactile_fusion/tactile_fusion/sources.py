@@ -64,7 +64,7 @@ class CachedSource:
                 difference = difference_images(torch.from_numpy(np.asarray(frames.images[start:start + batch_size])),
                                                reference)
                 b, c, h, w = difference.shape
-                x = torch.flatten(model.cnn.trunk(difference.reshape(b * c, 1, h, w)), 1)
+                x = model.cnn.conv_features(difference.reshape(b * c, 1, h, w))
                 if cut == "hidden":
                     x = model.cnn.first_layer(x)
                 chunks.append(x.reshape(b, c, -1))

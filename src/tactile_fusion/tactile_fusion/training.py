@@ -37,7 +37,7 @@ class TrainConfig:
     Each gradient phase stops early after `patience` epochs without a better validation RMSE.
     """
 
-    max_epochs: int = 30
+    max_epochs: int = 45
     batch_size: int = 16          # frames per step; each brings all its cameras through the CNN
     learning_rate: float = 2e-3
     patience: int = 12            # early stopping: epochs without a better validation RMSE
@@ -103,10 +103,16 @@ def build_model(config: ModelConfig, camera_ids, rows: int, cols: int, force_sca
     return ForceFusionNet(config, camera_ids, rows, cols, force_scale_n)
 
 
-def epoch_batches(n: int, batch_size: int, seed: int, epoch: int) -> list[np.ndarray]:
-    """The shuffled batches of one epoch, a function of (seed, epoch) only, so a resumed run repeats them."""
+def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int = 1) -> list[np.ndarray]:
+    """The shuffled batches of one epoch, a function of (seed, epoch) only, so a resumed run repeats them.
+
+    A last batch smaller than `min_batch` joins the one before it.
+    """
     order = np.random.default_rng([seed, epoch]).permutation(n)
-    return [order[i:i + batch_size] for i in range(0, n, batch_size)]
+    batches = [order[i:i + batch_size] for i in range(0, n, batch_size)]
+    if len(batches) > 1 and len(batches[-1]) < min_batch:
+        batches[-2:] = [np.concatenate(batches[-2:])]
+    return batches
 
 
 def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
@@ -124,6 +130,12 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     if len(train) < 1 or len(val) < 1:
         raise ValueError(f"fit: need at least one training and one validation frame, got {len(train)} and "
                          f"{len(val)}")
+    # Batch normalisation in training mode needs two samples per batch; each frame brings one per camera.
+    min_batch = -(-2 // model.n_cameras)
+    if config.batch_size < min_batch or len(train) < min_batch:
+        raise ValueError(f"fit: a {model.n_cameras}-camera model needs batches of at least {min_batch} frames (batch "
+                         f"normalisation needs two images per batch); got batch_size {config.batch_size} and "
+                         f"{len(train)} training frames")
     optimizer = torch.optim.Adam(params, lr=config.learning_rate)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.lr_patience,
                                                            min_lr=config.min_learning_rate)
@@ -143,8 +155,8 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
         torch.manual_seed(config.seed * 100_003 + epoch)  # dropout masks of this epoch
         model.train()
         losses = []
-        for idx in tqdm(epoch_batches(len(train), config.batch_size, config.seed, epoch), desc=f"epoch {epoch}",
-                        unit="batch", leave=False, disable=not progress):
+        batches = epoch_batches(len(train), config.batch_size, config.seed, epoch, min_batch)
+        for idx in tqdm(batches, desc=f"epoch {epoch}", unit="batch", leave=False, disable=not progress):
             loss = rmse_loss(train.predict(model, idx), train.target(idx), config.loss_eps)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()

@@ -57,10 +57,38 @@ def test_cnn_is_shared_so_swapping_cameras_swaps_feature_blocks(tiny_config):
 
 
 def test_difference_is_computed_in_float_without_uint8_wrap_around():
-    images = torch.tensor([[[[250, 4]]]], dtype=torch.uint8)
-    reference = torch.tensor([[[10, 250]]], dtype=torch.uint8)
+    reference = torch.full((1, 8, 8), 100, dtype=torch.uint8)
+    reference[0, 0, :2] = torch.tensor([10, 250], dtype=torch.uint8)
+    images = reference.clone()[None]
+    images[0, 0, 0, :2] = torch.tensor([250, 4], dtype=torch.uint8)   # uint8 arithmetic: 240 and 10 (wrapped)
+    current, ref = images.double(), reference.double()
+    gain = (current * ref).sum() / (ref * ref).sum()
+    expected = (current / gain - ref) / 255.0
     diff = difference_images(images, reference)
-    torch.testing.assert_close(diff, torch.tensor([[[[240.0, -246.0]]]]) / 255.0)
+    torch.testing.assert_close(diff.double(), expected, rtol=0, atol=1e-6)
+    assert diff[0, 0, 0, 0] > 0.9 and diff[0, 0, 0, 1] < -0.9
+
+
+def test_brightness_change_of_the_whole_image_is_compensated():
+    rng = np.random.default_rng(0)
+    reference = torch.from_numpy(rng.integers(20, 200, (2, 32, 32), dtype=np.uint8))
+    unchanged = difference_images(reference[None], reference)
+    assert torch.equal(unchanged, torch.zeros_like(unchanged))
+    brighter = torch.clamp(torch.round(reference.double() * 1.2), max=255).to(torch.uint8)[None]
+    assert difference_images(brighter, reference).abs().max() < 1.0 / 255.0  # only the rounding is left
+    raw = (brighter.double() - reference.double()) / 255.0
+    assert raw.abs().max() > 30.0 / 255.0  # what a plain difference would call a press everywhere
+
+
+def test_saturated_pixels_are_left_out_of_the_gain_and_blind_frames_stay_finite():
+    reference = torch.full((1, 16, 16), 60, dtype=torch.uint8)
+    reference[0, :4] = 200
+    over_exposed = torch.clamp(reference.double() * 2.0, max=255).to(torch.uint8)[None]   # 200 -> 255 (clipped)
+    diff = difference_images(over_exposed, reference)
+    torch.testing.assert_close(diff[0, 0, 4:], torch.zeros(12, 16), rtol=0, atol=1e-6)  # gain found: exactly 2
+    for level in (0, 255):
+        frame = torch.full((1, 1, 16, 16), level, dtype=torch.uint8)
+        assert torch.isfinite(difference_images(frame, reference)).all()
 
 
 def test_force_scale_is_finite_and_positive_when_most_bins_are_zero():

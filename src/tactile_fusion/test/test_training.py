@@ -124,6 +124,22 @@ def test_epoch_batches_cover_every_frame_once_and_depend_on_seed_and_epoch():
     assert not np.array_equal(np.concatenate(batches), np.concatenate(epoch_batches(10, 3, seed=1, epoch=2)))
 
 
+def test_a_last_batch_too_small_for_batch_norm_joins_the_previous_one():
+    batches = epoch_batches(10, 3, seed=1, epoch=1, min_batch=2)
+    assert [len(b) for b in batches] == [3, 3, 4]
+    assert sorted(np.concatenate(batches)) == list(range(10))
+
+
+def test_single_camera_training_with_one_frame_batches_is_refused_clearly(frames, tiny_config):
+    one_camera = frames.select_cameras(("left",))
+    train, val, scale = sources(one_camera)
+    model = build_model(tiny_config, ("left",), 3, 4, scale, seed=0)
+    with pytest.raises(ValueError, match="batches of at least 2 frames"):
+        fit(model, train, val, TrainConfig(max_epochs=1, batch_size=1))
+    result = fit(model, train, val, TrainConfig(max_epochs=1, batch_size=2))  # 33 frames: the last one joins
+    assert np.isfinite(result.best_val_rmse)
+
+
 def test_bad_train_config_is_rejected():
     with pytest.raises(ValueError, match="batch_size"):
         TrainConfig(batch_size=0)

@@ -1,0 +1,124 @@
+"""The training phases after end-to-end: head on cached features, least-squares fusion fit, recalibration."""
+
+import numpy as np
+import pytest
+import torch
+
+from tactile_fusion.data import split_indices
+from tactile_fusion.least_squares import fit_fusion
+from tactile_fusion.model import force_scale_from_targets
+from tactile_fusion.recalibration import add_camera, fraction_subset, predict_torch, recalibrate
+from tactile_fusion.sources import CachedSource, ImageSource, normalised_rmse
+from tactile_fusion.training import TrainConfig, build_model, fit, train_phases
+
+
+def splits(frames):
+    split = split_indices(len(frames), seed=3)
+    return frames.subset(split["train"]), frames.subset(split["val"])
+
+
+def model_for(frames, config, seed=0):
+    train, _ = splits(frames)
+    scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
+    return build_model(config, frames.camera_ids, 3, 4, scale, seed)
+
+
+def test_cached_source_predicts_what_the_whole_network_predicts(frames, tiny_config):
+    model = model_for(frames, tiny_config).eval()
+    train, _ = splits(frames)
+    idx = np.array([0, 3, 5])
+    with torch.no_grad():
+        whole = ImageSource(train, model.force_scale_n).predict(model, idx)
+        for cut in ("trunk", "hidden"):
+            torch.testing.assert_close(CachedSource(model, train, cut).predict(model, idx), whole)
+    with pytest.raises(ValueError, match="cut must be one of"):
+        CachedSource(model, train, "fusion")
+
+
+@pytest.mark.parametrize("rank", [None, 2])
+def test_least_squares_fusion_fit_is_exact_for_a_linear_target(frames, tiny_config, rank):
+    """Targets that are an exact linear map (of rank 2) of the model's own features are fitted exactly."""
+    from dataclasses import replace
+
+    model = model_for(frames, replace(tiny_config, fusion_rank=rank)).eval()
+    train, val = splits(frames)
+    teacher = model_for(frames, replace(tiny_config, fusion_rank=2), seed=1).eval()
+    teacher.cnn.load_state_dict(model.cnn.state_dict())
+    for part in (train, val):
+        part.bin_forces_n[...] = predict_torch(teacher, part)
+    sources = [CachedSource(model, part, "trunk") for part in (train, val)]
+    before = normalised_rmse(model, sources[1])
+    report = fit_fusion(model, *sources, ridges=(1e-9,))
+    assert report["ridge"] == 1e-9 and report["val_rmse_before"] == pytest.approx(before)
+    assert normalised_rmse(model, sources[1]) < 1e-3 * before
+
+
+def test_least_squares_keeps_the_layer_when_no_ridge_helps(frames, tiny_config):
+    model = model_for(frames, tiny_config).eval()
+    train, val = splits(frames)
+    sources = [CachedSource(model, part, "trunk") for part in (train, val)]
+    fit_fusion(model, *sources)
+    weights = model.fusion.expand.weight.clone()
+    report = fit_fusion(model, *sources, ridges=(1e6,))  # shrinks every weight to ~0: worse than the fit
+    assert report["ridge"] is None
+    assert torch.equal(model.fusion.expand.weight, weights)
+
+
+def test_train_phases_run_head_and_fusion_fit_and_resume_in_the_head_phase(frames, tiny_config, tmp_path):
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=2, head_epochs=4, batch_size=8, learning_rate=5e-3, seed=1)
+    straight = model_for(frames, tiny_config)
+    results = train_phases(straight, train, val, config)
+    assert set(results) == {"end_to_end", "head", "fusion_fit"}
+    assert results["head"].epochs_run == 4
+    assert all(p.requires_grad for p in straight.parameters())  # the trunk is unfrozen again afterwards
+
+    class Interrupt(Exception):
+        pass
+
+    calls = []
+
+    def interrupt_in_head(epoch, record):
+        calls.append(epoch)
+        if len(calls) == 4:  # 2 end-to-end epochs, then the 2nd head epoch
+            raise Interrupt
+
+    interrupted = model_for(frames, tiny_config)
+    with pytest.raises(Interrupt):
+        train_phases(interrupted, train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
+    assert (tmp_path / "checkpoint_end_to_end.pt").exists() and (tmp_path / "checkpoint_head.pt").exists()
+    resumed = model_for(frames, tiny_config)
+    train_phases(resumed, train, val, config, tmp_path, resume=True)
+    for key, value in straight.state_dict().items():
+        assert torch.equal(value, resumed.state_dict()[key]), key
+
+
+def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_train(frames, tiny_config):
+    base_frames = frames.select_cameras(("left",))
+    train, val = splits(base_frames)
+    base = model_for(base_frames, tiny_config)
+    fit(base, ImageSource(train, base.force_scale_n), ImageSource(val, base.force_scale_n),
+        TrainConfig(max_epochs=2, batch_size=8))
+    grown = add_camera(base, ("left", "right"))
+    np.testing.assert_allclose(predict_torch(grown, frames), predict_torch(base, base_frames), atol=1e-6)
+    trainable = {name for name, p in grown.named_parameters() if p.requires_grad}
+    assert trainable and all(n.startswith(("cnn.last_layer", "fusion")) for n in trainable)
+
+    full_train, full_val = splits(frames)
+    frozen = {k: v.clone() for k, v in grown.state_dict().items() if k.startswith(("cnn.trunk", "cnn.first_layer"))}
+    model, result, wall_s = recalibrate(base, full_train, full_val, TrainConfig(max_epochs=3, batch_size=8))
+    assert wall_s > 0 and result.epochs_run == 3
+    for key, value in frozen.items():
+        assert torch.equal(model.state_dict()[key], value), f"{key} changed during recalibration"
+    assert not torch.equal(model.state_dict()["cnn.last_layer.linear.weight"],
+                           grown.state_dict()["cnn.last_layer.linear.weight"])
+    with pytest.raises(ValueError, match="at least one more"):
+        add_camera(base, ("left",))
+
+
+def test_fraction_subsets_are_nested_and_seeded(frames):
+    small, large = fraction_subset(frames, 0.25, seed=1), fraction_subset(frames, 0.5, seed=1)
+    assert len(small) == 12 and len(large) == 24
+    assert {bytes(i) for i in small.images} <= {bytes(i) for i in large.images}
+    with pytest.raises(ValueError, match="fraction"):
+        fraction_subset(frames, 0.0, seed=1)
