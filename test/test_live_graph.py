@@ -1,6 +1,8 @@
 """System tests of the live graph: real node processes talking over Fast DDS on loopback."""
 
+import json
 import os
+import subprocess
 import time
 from pathlib import Path
 
@@ -12,6 +14,7 @@ from rclpy.node import Node
 from tactile_bringup.graph import NodeSpec
 from tactile_bringup.processes import start_node, stop_nodes
 from tactile_description import default_sensor_path
+from tactile_fusion.artifacts import default_model_dir
 from tactile_msgs.msg import ImageBundle
 
 pytestmark = pytest.mark.system
@@ -65,3 +68,19 @@ def test_a_dropped_camera_degrades_bundles_and_they_recover(ros_domain, tmp_path
         assert all((i.height, i.width, i.encoding, len(i.data)) == (128, 128, "mono8", 128 * 128)
                    for i in msg.images)
     assert "no images from ['cam1']" in logs
+
+
+def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(tmp_path):
+    """`make demo`'s command: simulated cameras -> bundles -> fusion node, watched against the ground truth."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + (os.getpid() + 1) % 80), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    demo = subprocess.run(["tactile-demo", "--duration", "15", "--json", "--log-dir", str(tmp_path)], env=env,
+                          capture_output=True, text=True, timeout=120)
+    logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
+    assert demo.returncode == 0, demo.stderr + logs
+    summary = json.loads(demo.stdout.strip().splitlines()[-1])
+    assert summary["contract_violations"] == []
+    assert summary["estimates"] > 100 and summary["matched_with_ground_truth"] > 100, summary
+    assert summary["missing_camera_ids"] == []
+    shipped = json.loads((default_model_dir() / "metrics.json").read_text())
+    # The demo scene (a 1 mm press sliding over the surface) is not the test split: allow twice the test error.
+    assert summary["rmse_total_n"][2] < 2 * shipped["rmse_total_n"][2] + 0.05, summary

@@ -28,9 +28,17 @@ class NodeSpec:
         """Command-line arguments that give the node its name and parameters (`--ros-args ...`)."""
         args = ["--ros-args", "-r", f"__node:={self.name}"]
         for key, value in self.parameters.items():
-            text = str(value).lower() if isinstance(value, bool) else str(value)
-            args += ["-p", f"{key}:={text}"]
+            args += ["-p", f"{key}:={yaml_scalar(value)}"]
         return args
+
+
+def yaml_scalar(value: str | int | float | bool) -> str:
+    """A parameter value as rcl reads `-p name:=value` (YAML): strings quoted, so that "" or "true" stay strings."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, str):
+        return "'" + value.replace("'", "''") + "'"
+    return str(value)
 
 
 def camera_sources(path: str | Path, sensor: SensorDescription) -> dict[str, str]:

@@ -53,9 +53,10 @@ def test_bad_source_is_rejected(sensor):
 
 
 def test_parameters_become_ros_arguments():
-    spec = NodeSpec("pkg", "exe", "my_node", {"scene": "demo", "loop": True, "rate_hz": 40.0})
-    assert spec.ros_arguments() == ["--ros-args", "-r", "__node:=my_node", "-p", "scene:=demo", "-p", "loop:=true",
-                                    "-p", "rate_hz:=40.0"]
+    spec = NodeSpec("pkg", "exe", "my_node", {"scene": "demo", "loop": True, "rate_hz": 40.0, "model_dir": "",
+                                              "name": "it's"})
+    assert spec.ros_arguments() == ["--ros-args", "-r", "__node:=my_node", "-p", "scene:='demo'", "-p", "loop:=true",
+                                    "-p", "rate_hz:=40.0", "-p", "model_dir:=''", "-p", "name:='it''s'"]
 
 
 def test_installed_launch_file_builds_the_graph_from_this_module():
