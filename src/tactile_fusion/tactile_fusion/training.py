@@ -33,7 +33,7 @@ class TrainConfig:
 
     Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully
     connected layers and fusion) alone for up to `head_epochs` on cached conv features, which costs about
-    1/40 of an end-to-end epoch; then the exact least-squares fit of the linear fusion layer (least_squares.py).
+    1/25 of an end-to-end epoch; then the exact least-squares fit of the linear fusion layer (least_squares.py).
     Each gradient phase stops early after `patience` epochs without a better validation RMSE.
     """
 
@@ -195,7 +195,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
     Why phases: an end-to-end step spends almost all its time in the convolutions at full resolution, while
     the head (sigmoid layers and fusion) needs many more epochs than the conv filters to converge; with the
-    trunk frozen its output is computed once and a head epoch costs about 1/40 of an end-to-end one. And the
+    trunk frozen its output is computed once and a head epoch costs about 1/25 of an end-to-end one. And the
     fusion layer is linear: its exact least-squares weights for the final features beat what gradient steps
     reach (docs/learning.md). Each gradient phase keeps its own checkpoint in `checkpoint_dir`, so an
     interrupted run resumes in either phase (the least-squares fit is deterministic and takes seconds).
