@@ -68,11 +68,14 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
         ax.plot(line * 100, slope * line + intercept, "-", color=colour, alpha=0.6,
                 label=f"trend {slope:+.3f} mN per 100 % data")
         ax.axhline(sweep["full_training"]["metrics"][key][2] * scale * 1e3, color=colour, ls="--", alpha=0.7,
-                   label=f"full training ({label})")
+                   label=f"full training, all cameras ({label})")
+        if "base_training" in sweep:
+            ax.axhline(sweep["base_training"]["metrics"][key][2] * scale * 1e3, color=colour, ls=":", alpha=0.7,
+                       label=f"before recalibration, {sweep['base_cameras']} cameras ({label})")
     ax.set_xlabel("training data used for recalibration (%)")
     ax.set_ylabel("RMSE on the test split (mN)")
     ax.set_title(f"adding camera {sweep['added_camera']} to a {sweep['base_cameras']}-camera model")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=6, loc="center right")
     names = ["full training"] + [f"recal. {100 * f:.0f} %" for f in fractions]
     times = [sweep["full_training"]["wall_time_s"]] + [run["wall_time_s"] for run in sweep["recalibration"]]
     bx.bar(range(len(names)), times, color=["tab:red"] + ["tab:green"] * len(fractions))
