@@ -5,7 +5,6 @@ bundle node, the `tactile-bag` console script, and this process as the subscribe
 """
 
 import json
-import os
 import subprocess
 import time
 from pathlib import Path
@@ -15,7 +14,6 @@ import pytest
 import rclpy
 import torch
 from ament_index_python.packages import get_package_prefix
-from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
@@ -32,18 +30,6 @@ pytestmark = pytest.mark.system
 RECORD_S = 4.0
 
 
-@pytest.fixture
-def ros_domain(monkeypatch):
-    """A DDS domain of this test's own (another range than test_live_graph's), shared with the child processes."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + os.getpid() % 80))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init()
-    node = Node("bag_test_probe")
-    yield node
-    node.destroy_node()
-    rclpy.try_shutdown()
-
-
 def tactile_bag(*args: str, timeout_s: float = 30.0) -> subprocess.CompletedProcess:
     executable = Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"
     return subprocess.run([str(executable), *args], capture_output=True, text=True, timeout=timeout_s)
@@ -55,7 +41,7 @@ def spin_until(node, condition, timeout_s: float) -> None:
         rclpy.spin_once(node, timeout_sec=0.05)
 
 
-def test_record_replay_and_evaluate_the_simulated_graph(ros_domain, tmp_path):
+def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, tmp_path):
     config = str(default_sensor_path())
     sensor = load_sensor(config)
     specs = [NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_cameras", {"sensor_config": config}),
@@ -63,10 +49,10 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_domain, tmp_path):
     processes = [start_node(spec, tmp_path / "logs") for spec in specs]
     live = []
     try:
-        subscription = ros_domain.create_subscription(Image, "/tactile/cam0/image", live.append,
+        subscription = ros_probe.create_subscription(Image, "/tactile/cam0/image", live.append,
                                                       qos_profile_sensor_data)
-        spin_until(ros_domain, lambda: live, timeout_s=20.0)  # the graph is up once images flow
-        ros_domain.destroy_subscription(subscription)
+        spin_until(ros_probe, lambda: live, timeout_s=20.0)  # the graph is up once images flow
+        ros_probe.destroy_subscription(subscription)
         assert live, "the simulated cameras never published"
         recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", str(RECORD_S))
         unknown = tactile_bag("record", str(tmp_path / "other"), "--duration", "1", "--topics", "/tactile/nothing",
@@ -104,13 +90,13 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_domain, tmp_path):
 
     # Replay: a subscriber with the camera drivers' QoS receives the recorded images, bytes unchanged.
     replayed = []
-    ros_domain.create_subscription(Image, "/tactile/cam0/image", replayed.append, qos_profile_sensor_data)
+    ros_probe.create_subscription(Image, "/tactile/cam0/image", replayed.append, qos_profile_sensor_data)
     player = subprocess.Popen([str(Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"),
                                "play", str(tmp_path / "bag"), "--rate", "2", "--topics", "/tactile/cam0/image",
                                "--wait-subscribers", "15"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    spin_until(ros_domain, lambda: player.poll() is not None, timeout_s=30.0)
-    spin_until(ros_domain, lambda: False, timeout_s=0.3)  # the last messages in flight
+    spin_until(ros_probe, lambda: player.poll() is not None, timeout_s=30.0)
+    spin_until(ros_probe, lambda: False, timeout_s=0.3)  # the last messages in flight
     out, err = player.communicate(timeout=5)
     assert player.returncode == 0, err
     assert out.startswith(f"played {len(cam0)} messages")

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec
 from tactile_bringup.processes import start_node, stop_nodes
@@ -19,18 +18,6 @@ from tactile_msgs.msg import ImageBundle
 
 pytestmark = pytest.mark.system
 DATA = Path(__file__).parent / "data"
-
-
-@pytest.fixture
-def ros_domain(monkeypatch):
-    """A DDS domain of this test's own, so parallel runs and other graphs on the machine stay apart."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init()
-    node = Node("live_graph_probe")
-    yield node
-    node.destroy_node()
-    rclpy.try_shutdown()
 
 
 def collect(node, msg_type, topic, seconds):
@@ -43,14 +30,14 @@ def collect(node, msg_type, topic, seconds):
     return received
 
 
-def test_a_dropped_camera_degrades_bundles_and_they_recover(ros_domain, tmp_path):
+def test_a_dropped_camera_degrades_bundles_and_they_recover(ros_probe, tmp_path):
     config = str(default_sensor_path())
     specs = [NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_cameras",
                       {"sensor_config": config, "scene": str(DATA / "camera_dropout.yaml")}),
              NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": config})]
     processes = [start_node(spec, tmp_path) for spec in specs]
     try:
-        bundles = collect(ros_domain, ImageBundle, "/tactile/image_bundle", seconds=14.0)
+        bundles = collect(ros_probe, ImageBundle, "/tactile/image_bundle", seconds=14.0)
     finally:
         codes = stop_nodes(processes)
     logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))

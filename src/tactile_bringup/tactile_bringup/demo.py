@@ -89,6 +89,16 @@ class Monitor(Node):
         }
 
 
+def wait_for_publisher(node: Node, topic: str, timeout_s: float) -> bool:
+    """True once some node publishes `topic` (discovered over DDS), False after `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if node.count_publishers(topic):
+            return True
+        rclpy.spin_once(node, timeout_sec=0.1)
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=20.0, help="seconds to run the graph (default 20)")
@@ -105,9 +115,17 @@ def main(argv: list[str] | None = None) -> int:
     sensor = load_sensor(sensor_config)
     log_dir = Path(args.log_dir)
     specs = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model)
-    processes = [start_node(spec, log_dir) for spec in specs]
+    # The fusion node takes its reference frames from the first bundles it sees, which must show the surface at
+    # rest: start the cameras only once it is up (it loads the model for a few seconds), so the scene's opening
+    # rest frames are the ones it gets.
+    cameras = [s for s in specs if s.package == "tactile_camera_driver"]
+    specs = [s for s in specs if s not in cameras] + cameras
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
+    processes = [start_node(spec, log_dir) for spec in specs if spec not in cameras]
+    if not wait_for_publisher(monitor, "/tactile/force_distribution", timeout_s=60.0):
+        print(f"tactile-demo: the fusion node did not come up within 60 s; see {log_dir}/", file=sys.stderr)
+    processes += [start_node(spec, log_dir) for spec in cameras]
     started = time.monotonic()
     next_report = started + 1.0
     try:
