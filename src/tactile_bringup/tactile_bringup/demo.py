@@ -25,6 +25,7 @@ from tactile_bringup.graph import sensor_graph
 from tactile_bringup.processes import start_node, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
+from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 
 
@@ -37,7 +38,7 @@ class Monitor(Node):
         self.truths: deque[tuple[float, np.ndarray]] = deque(maxlen=200)
         self.latencies_s: list[float] = []
         self.arrivals_s: list[float] = []
-        self.errors_n: list[np.ndarray] = []  # per matched estimate: (rows, cols, 3) estimate - truth
+        self.matched: list[tuple[np.ndarray, np.ndarray]] = []  # (estimate, truth), each (rows, cols, 3)
         self.violations: list[str] = []
         self.missing_cameras: set[str] = set()
         self.last: tuple[float, float] | None = None  # (estimated Fz, true Fz)
@@ -70,20 +71,20 @@ class Monitor(Node):
             return
         truth_stamp, truth = min(self.truths, key=lambda t: abs(t[0] - stamp_s))
         if abs(truth_stamp - stamp_s) < 0.01:  # the bundle stamp is the median of jittered camera stamps
-            self.errors_n.append(estimate - truth)
+            self.matched.append((estimate, truth))
             self.last = (float(estimate[..., 2].sum()), float(truth[..., 2].sum()))
 
     def summary(self, duration_s: float) -> dict:
         periods = np.diff(self.arrivals_s)
-        errors = np.array(self.errors_n) if self.errors_n else np.zeros((0, self.rows, self.cols, 3))
+        metrics = force_metrics(*map(np.stack, zip(*self.matched, strict=True))) if self.matched else {}
         return {
             "duration_s": duration_s,
             "estimates": len(self.arrivals_s),
             "rate_hz": float(1.0 / statistics.median(periods)) if len(periods) else 0.0,
             "latency_ms_median": 1e3 * statistics.median(self.latencies_s) if self.latencies_s else None,
-            "matched_with_ground_truth": len(errors),
-            "rmse_bin_n": np.sqrt((errors**2).mean(axis=(0, 1, 2))).tolist() if len(errors) else None,
-            "rmse_total_n": np.sqrt((errors.sum(axis=(1, 2))**2).mean(axis=0)).tolist() if len(errors) else None,
+            "matched_with_ground_truth": len(self.matched),
+            "rmse_bin_n": metrics.get("rmse_bin_n"),
+            "rmse_total_n": metrics.get("rmse_total_n"),
             "missing_camera_ids": sorted(self.missing_cameras),
             "contract_violations": self.violations[:10],
         }
