@@ -32,7 +32,8 @@ from tactile_conversions.images import frame_from_images
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames, check_model_fits
+from tactile_fusion.artifacts import check_model_fits
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 

@@ -86,18 +86,22 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
     return model.eval()
 
 
-def check_model_fits_sensor(description: dict, sensor: SensorDescription, model_dir: str | Path) -> None:
-    """Raise ModelFileError unless the model's cameras, grid and image size are those of `sensor`."""
-    size = description["model_config"]["image_size"]
-    expected = (tuple(sensor.camera_ids), sensor.grid.rows, sensor.grid.cols,
-                {c.output_size for c in sensor.cameras})
-    found = (tuple(description["camera_ids"]), description["rows"], description["cols"], {(size, size)})
-    if expected != found:
-        raise ModelFileError(f"model {model_dir} was trained for cameras {list(found[0])}, a {found[1]} x {found[2]} "
-                             f"grid and {size} x {size} images, but the sensor description "
-                             f"{sensor.source or sensor.name} has cameras {list(expected[0])}, a {expected[1]} x "
-                             f"{expected[2]} grid and images {sorted(expected[3])}: use a model trained for this "
-                             "sensor (tactile-fusion train --sensor ...)")
+def check_model_fits(model, sensor: SensorDescription) -> None:
+    """Raise ModelFileError unless `model` predicts for exactly the sensor's cameras, bin grid and image size.
+
+    `model`: a ForcePredictor or a ForceFusionNet (anything with camera_ids, rows, cols and image_size). The
+    camera order does not matter: inputs are matched to the model by camera id (callers that feed a graph
+    directly reorder with FrameSet.select_cameras).
+    """
+    sizes = {c.output_size for c in sensor.cameras}
+    if sorted(model.camera_ids) != sorted(sensor.camera_ids) or \
+            (model.rows, model.cols) != (sensor.grid.rows, sensor.grid.cols) or \
+            sizes != {(model.image_size, model.image_size)}:
+        raise ModelFileError(f"the model is for cameras {list(model.camera_ids)}, {model.rows} x {model.cols} bins "
+                             f"and {model.image_size} x {model.image_size} images; the sensor description "
+                             f"{sensor.source or sensor.name} has cameras {list(sensor.camera_ids)}, "
+                             f"{sensor.grid.rows} x {sensor.grid.cols} bins and images {sorted(sizes)}: use the "
+                             "model and the sensor description of the same sensor (tactile-fusion train --sensor ...)")
 
 
 def write_json(path: str | Path, data: dict) -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, load_sensor
-from tactile_fusion.artifacts import ModelFileError, check_model_fits_sensor, default_model_dir, read_model_json
+from tactile_fusion.artifacts import ModelFileError, check_model_fits, default_model_dir
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
@@ -45,7 +45,8 @@ def _model_config(args) -> ModelConfig:
 
 def _train_config(args) -> TrainConfig:
     return TrainConfig(max_epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
-                       patience=args.patience, seed=args.seed, head_epochs=args.head_epochs)
+                       patience=args.patience, seed=args.seed, head_epochs=args.head_epochs,
+                       head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate)
 
 
 def cmd_train(args) -> int:
@@ -86,8 +87,8 @@ def cmd_eval(args) -> int:
 
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
-    check_model_fits_sensor(read_model_json(model_dir), sensor, model_dir)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
+    check_model_fits(predictor, sensor)
     results = {}
     for name, frames in _eval_sets(args, sensor):
         metrics, predicted = evaluate(predictor, frames)
@@ -132,13 +133,10 @@ def cmd_recalibrate(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from tactile_fusion.pipeline import CALIBRATION_FRAMES, DEFAULT_SCENE, export_model_dir, scene_frames
+    from tactile_fusion.pipeline import export_model_dir
 
     model_dir = Path(args.model) if args.model else default_model_dir()
-    sensor = load_sensor(args.sensor)
-    check_model_fits_sensor(read_model_json(model_dir), sensor, model_dir)
-    calibration = scene_frames(sensor, DEFAULT_SCENE, "train", CALIBRATION_FRAMES)
-    for precision, path in export_model_dir(model_dir, calibration).items():
+    for precision, path in export_model_dir(model_dir, load_sensor(args.sensor)).items():
         print(f"{precision}: {path}")
     return 0
 
@@ -165,8 +163,10 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=train.max_epochs, help="at most this many end-to-end epochs")
     parser.add_argument("--head-epochs", type=int, default=train.head_epochs,
                         help="then at most this many epochs of the head alone on cached conv features")
-    parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per step")
+    parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per end-to-end step")
     parser.add_argument("--learning-rate", type=float, default=train.learning_rate)
+    parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size, help="frames per head step")
+    parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate)
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

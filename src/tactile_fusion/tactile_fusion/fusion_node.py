@@ -24,8 +24,9 @@ from tactile_conversions.forces import force_distribution_msg, force_markers, wr
 from tactile_conversions.images import frame_from_images
 from tactile_conversions.node_main import run_node
 from tactile_description import load_sensor
+from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.inference import InputError, load_predictor
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames, check_model_fits
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 

@@ -1,33 +1,15 @@
-"""What the fusion node does to each bundle, without ROS: shared by the live node and offline bag evaluation.
+"""The reference frames of live estimation, without ROS: shared by the fusion node and offline bag evaluation.
 
-- `check_model_fits`: a model must predict for the sensor's cameras and bin grid, or nothing runs.
-- `ReferenceFrames`: the model needs each camera's frame at rest; the live graph takes the pixel-wise mean of the
-  first `count` complete bundles (nothing may touch the surface meanwhile) and can be asked to take it again.
+The model needs each camera's frame at rest; the live graph takes the pixel-wise mean of the first `count`
+complete bundles (nothing may touch the surface meanwhile) and can be asked to take it again.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
-
-from tactile_description import SensorDescription
-
-if TYPE_CHECKING:  # importing the backends loads torch and onnxruntime (seconds): only the caller needs them
-    from tactile_fusion.inference import ForcePredictor
 
 #: Complete bundles averaged into the reference frames (the fusion node's default `reference_bundles`).
 REFERENCE_BUNDLES = 10
-
-
-def check_model_fits(predictor: ForcePredictor, sensor: SensorDescription) -> None:
-    """Raise ValueError unless the model predicts for exactly the sensor's cameras and bin grid."""
-    if sorted(predictor.camera_ids) != sorted(sensor.camera_ids) or \
-            (predictor.rows, predictor.cols) != (sensor.grid.rows, sensor.grid.cols):
-        raise ValueError(f"the model is for cameras {list(predictor.camera_ids)} and {predictor.rows} x "
-                         f"{predictor.cols} bins, the sensor description {sensor.source or sensor.name} has cameras "
-                         f"{list(sensor.camera_ids)} and {sensor.grid.rows} x {sensor.grid.cols} bins: use the model "
-                         "and the sensor description of the same sensor")
 
 
 class ReferenceFrames:

@@ -39,14 +39,14 @@ def test_split_is_70_10_20_disjoint_complete_and_deterministic():
 
 def test_simulated_frames_keep_only_the_requested_indices(sensor):
     scene = load_scene("paper_grid", sensor)
-    every = simulate_frames(sensor, scene, np.arange(50))
-    picked = simulate_frames(sensor, scene, np.array([3, 41, 47]))
+    every = simulate_frames(sensor, scene, np.arange(130))
+    picked = simulate_frames(sensor, scene, np.array([3, 121, 127]))
     assert picked.images.shape == (3, 4, 128, 128) and picked.images.dtype == np.uint8
     assert picked.bin_forces_n.shape == (3, 26, 25, 3) and picked.bin_forces_n.dtype == np.float32
-    np.testing.assert_array_equal(picked.images, every.images[[3, 41, 47]])
-    np.testing.assert_array_equal(picked.bin_forces_n, every.bin_forces_n[[3, 41, 47]])
+    np.testing.assert_array_equal(picked.images, every.images[[3, 121, 127]])
+    np.testing.assert_array_equal(picked.bin_forces_n, every.bin_forces_n[[3, 121, 127]])
     assert picked.camera_ids == sensor.camera_ids and picked.seed == scene.seed and picked.scene == "paper_grid"
-    assert every.bin_forces_n[45:, :, :, 2].sum() > 0  # presses after the rest frames
+    assert every.bin_forces_n[125:, :, :, 2].sum() > 0  # presses after the rest frames
 
 
 def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sensor, tmp_path):
@@ -73,3 +73,16 @@ def test_select_cameras_reorders_and_rejects_unknown_ids(frames):
     np.testing.assert_array_equal(picked.reference[0], frames.reference[1])
     with pytest.raises(DatasetMismatchError, match="cam7"):
         frames.select_cameras(("cam7",))
+
+
+def test_int8_calibration_frames_spread_over_the_training_split_not_its_opening_rest_frames(sensor):
+    from tactile_fusion.pipeline import CALIBRATION_FRAMES, calibration_indices
+
+    scene = load_scene("paper_grid", sensor)
+    train = split_indices(len(scene), scene.seed)["train"]
+    picked = calibration_indices(train)
+    assert len(picked) == CALIBRATION_FRAMES and set(picked) <= set(train) and np.all(np.diff(picked) > 0)
+    assert picked[0] == train[0] and picked[-1] == train[-1]
+    rest_frames = 120  # the scene opens with 120 frames at rest: only a few of them may be picked
+    assert np.sum(picked < rest_frames) <= 2
+    np.testing.assert_array_equal(calibration_indices(np.array([5, 9])), [5, 9])  # fewer frames than wanted: all

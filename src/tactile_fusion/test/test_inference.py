@@ -5,7 +5,8 @@ import onnx
 import pytest
 import torch
 
-from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, load_model, save_model
+from tactile_description import load_sensor
+from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, check_model_fits, load_model, save_model
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
 from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig
@@ -152,3 +153,18 @@ def test_saved_model_reloads_identically(model_dir, tmp_path):
     assert isinstance(again, ForceFusionNet) and again.camera_ids == CAMERAS
     for key, value in model.state_dict().items():
         assert torch.equal(value, again.state_dict()[key])
+
+
+def test_a_model_must_fit_the_sensor_in_cameras_bins_and_image_size():
+    sensor = load_sensor()
+
+    def net(camera_ids, rows=26, cols=25, size=128):
+        return ForceFusionNet(ModelConfig(image_size=size), camera_ids, rows, cols)
+
+    check_model_fits(TorchPredictor(net(sensor.camera_ids[::-1])), sensor)  # inputs are matched by id: any order
+    check_model_fits(net(sensor.camera_ids), sensor)                        # a torch model is checked the same way
+    for wrong, message in ((net(sensor.camera_ids[:3]), "the model is for cameras"),
+                           (net(sensor.camera_ids, rows=25), "26 x 25 bins"),
+                           (net(sensor.camera_ids, size=64), "64 x 64 images")):
+        with pytest.raises(ModelFileError, match=message):
+            check_model_fits(TorchPredictor(wrong), sensor)

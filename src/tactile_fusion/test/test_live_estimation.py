@@ -1,10 +1,7 @@
 import numpy as np
 import pytest
 
-from tactile_description import load_sensor
-from tactile_fusion.inference import TorchPredictor
-from tactile_fusion.live_estimation import ReferenceFrames, check_model_fits
-from tactile_fusion.model import ForceFusionNet, ModelConfig
+from tactile_fusion.live_estimation import ReferenceFrames
 
 
 def test_reference_is_the_rounded_mean_of_complete_frames():
@@ -31,16 +28,3 @@ def test_reset_takes_the_reference_again():
 def test_a_reference_needs_a_frame():
     with pytest.raises(ValueError, match="at least one frame"):
         ReferenceFrames(4, (128, 128), count=0)
-
-
-def predictor(camera_ids, rows, cols):
-    return TorchPredictor(ForceFusionNet(ModelConfig(), camera_ids, rows, cols))
-
-
-def test_model_must_fit_the_sensor():
-    sensor = load_sensor()
-    check_model_fits(predictor(sensor.camera_ids[::-1], 26, 25), sensor)  # order does not matter
-    with pytest.raises(ValueError, match="the model is for cameras"):
-        check_model_fits(predictor(sensor.camera_ids[:3], 26, 25), sensor)
-    with pytest.raises(ValueError, match="26 x 25 bins"):
-        check_model_fits(predictor(sensor.camera_ids, 25, 25), sensor)

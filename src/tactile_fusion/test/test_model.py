@@ -8,6 +8,7 @@ import torch
 
 from tactile_description import load_sensor
 from tactile_fusion.model import (
+    ConvBlock,
     ForceFusionNet,
     FusionLayer,
     ModelConfig,
@@ -135,6 +136,22 @@ def test_constant_input_and_batch_of_one_in_training_mode_stay_finite(tiny_confi
     loss.backward()
     assert torch.isfinite(out).all() and torch.isfinite(loss)
     assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+
+
+def test_pooling_before_batch_norm_is_the_papers_conv_block_when_the_norm_scale_is_positive():
+    """The block pools first for speed; with a positive batch-norm scale that is conv, BN, ReLU, pool exactly."""
+    torch.manual_seed(0)
+    block = ConvBlock(2, 5).eval()
+    with torch.no_grad():
+        block.norm.weight.copy_(torch.rand(5) + 0.1)
+        block.norm.bias.copy_(torch.randn(5))
+        block.norm.running_mean.copy_(torch.randn(5))
+        block.norm.running_var.copy_(torch.rand(5) + 0.5)
+        x = torch.randn(3, 2, 16, 16)
+        papers_order = block.pool(torch.relu(block.norm(block.conv(x))))
+        torch.testing.assert_close(block(x), papers_order)
+        block.norm.weight.mul_(-1.0)                      # a negative scale turns max pooling into min pooling
+        assert not torch.allclose(block(x), block.pool(torch.relu(block.norm(block.conv(x)))))
 
 
 def test_factored_fusion_is_one_linear_map_of_limited_rank():

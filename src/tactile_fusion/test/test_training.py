@@ -43,7 +43,7 @@ def test_rmse_matches_the_definition_away_from_zero():
 
 
 def test_training_lowers_the_validation_error(frames, tiny_config):
-    config = TrainConfig(max_epochs=10, batch_size=4, learning_rate=1e-2, patience=10)
+    config = TrainConfig(max_epochs=10, batch_size=4, learning_rate=3e-2, patience=10)
     model, result = trained(frames, tiny_config, config)
     assert result.best_val_rmse < 0.9 * result.initial_val_rmse
     assert result.history[-1]["train_rmse"] < 0.95 * result.history[0]["train_rmse"]
@@ -90,7 +90,7 @@ def test_resuming_with_other_settings_is_refused(frames, tiny_config, tmp_path):
 def test_early_stopping_keeps_the_best_epoch(frames, tiny_config):
     # A learning rate this large makes the validation error jump around: training stops after `patience`
     # epochs without improvement and restores the best weights seen.
-    config = TrainConfig(max_epochs=30, batch_size=4, learning_rate=0.5, patience=2, lr_patience=30)
+    config = TrainConfig(max_epochs=30, batch_size=4, learning_rate=0.5, patience=2)
     model, result = trained(frames, tiny_config, config)
     assert result.stopped_early and result.epochs_run < 30
     assert result.epochs_run - result.best_epoch == 2
@@ -143,3 +143,13 @@ def test_single_camera_training_with_one_frame_batches_is_refused_clearly(frames
 def test_bad_train_config_is_rejected():
     with pytest.raises(ValueError, match="batch_size"):
         TrainConfig(batch_size=0)
+
+
+def test_head_phase_has_its_own_epochs_learning_rate_and_batch_size():
+    config = TrainConfig(max_epochs=7, batch_size=16, learning_rate=1e-3, head_epochs=30, head_learning_rate=4e-3,
+                         head_batch_size=64)
+    head = config.head_phase()
+    assert (head.max_epochs, head.learning_rate, head.batch_size, head.head_epochs) == (30, 4e-3, 64, 0)
+    assert head.seed == config.seed and head.patience == 30  # no early stopping during the warm restart
+    with pytest.raises(ValueError, match="head_batch_size"):
+        TrainConfig(head_batch_size=0)

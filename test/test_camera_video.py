@@ -1,0 +1,100 @@
+"""camera_node on real video files through OpenCV, and on sources that cannot be used: real processes, Fast DDS."""
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+
+from tactile_bringup.graph import NodeSpec
+from tactile_bringup.processes import start_node, stop_nodes
+from tactile_conversions.images import msg_to_array
+from tactile_description import default_sensor_path, load_sensor
+from tactile_description.imaging import crop_and_downsample
+
+pytestmark = pytest.mark.system
+VIDEO_FRAMES = 12
+
+
+def write_video(path, width: int, height: int, frames: int = VIDEO_FRAMES):
+    """An MJPG AVI (OpenCV's built-in encoder) of a bright disk moving over a smooth background."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 40.0, (width, height))
+    assert writer.isOpened()
+    yy, xx = np.mgrid[0:height, 0:width]
+    for i in range(frames):
+        grey = 60 + 40 * xx / width + 120 * (np.hypot(xx - width * (0.2 + 0.05 * i), yy - height / 2) < height / 6)
+        writer.write(cv2.cvtColor(grey.astype(np.uint8), cv2.COLOR_GRAY2BGR))
+    writer.release()
+    return path
+
+
+def decoded_frames(path):
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            return frames
+        frames.append(frame)
+
+
+def collect_images(node, topic: str, seconds: float) -> list:
+    received = []
+    subscription = node.create_subscription(Image, topic, received.append, qos_profile_sensor_data)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    node.destroy_subscription(subscription)
+    return received
+
+
+def camera_spec(name: str, camera_id: str, source) -> NodeSpec:
+    return NodeSpec("tactile_camera_driver", "camera_node", name,
+                    {"sensor_config": str(default_sensor_path()), "camera_id": camera_id, "source": str(source)})
+
+
+def test_a_video_file_is_cropped_downsampled_published_and_replayed(ros_probe, tmp_path):
+    camera = load_sensor().cameras[0]
+    video = write_video(tmp_path / "cam0.avi", *camera.capture_size)
+    expected = [crop_and_downsample(frame, camera) for frame in decoded_frames(video)]
+    assert len(expected) == VIDEO_FRAMES
+    process = start_node(camera_spec("video_camera", camera.camera_id, video), tmp_path)
+    try:
+        images = collect_images(ros_probe, f"/tactile/{camera.camera_id}/image", seconds=5.0)
+    finally:
+        codes = stop_nodes([process])
+    log = (tmp_path / "video_camera.log").read_text()
+    assert codes == [0], log
+    assert len(images) > 2 * VIDEO_FRAMES, log  # 40 Hz for seconds from a 12-frame file: it was replayed
+    matched = []
+    for msg in images:
+        assert (msg.height, msg.width, msg.encoding) == (128, 128, "mono8")
+        assert msg.header.frame_id == f"{camera.camera_id}_optical"
+        image = msg_to_array(msg, camera.camera_id)
+        matches = [i for i, frame in enumerate(expected) if np.array_equal(image, frame)]
+        assert matches, "a published image is not the crop of any frame of the video"
+        matched.append(matches[0])
+    assert set(matched) == set(range(VIDEO_FRAMES))        # every frame of the file, in order, again and again
+    assert matched.count(0) >= 2
+    stamps = [msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 for msg in images]
+    assert np.all(np.diff(stamps) > 0)
+
+
+def test_a_missing_source_and_a_wrong_frame_size_are_reported_and_the_nodes_keep_running(ros_probe, tmp_path):
+    small = write_video(tmp_path / "small.avi", 160, 120)
+    processes = [start_node(camera_spec("missing_camera", "cam1", tmp_path / "no_such_file.avi"), tmp_path),
+                 start_node(camera_spec("small_camera", "cam2", small), tmp_path)]
+    try:
+        images = collect_images(ros_probe, "/tactile/cam2/image", seconds=3.0)
+        running = [p.poll() is None for p in processes]
+    finally:
+        codes = stop_nodes(processes)
+    missing_log = (tmp_path / "missing_camera.log").read_text()
+    small_log = (tmp_path / "small_camera.log").read_text()
+    assert running == [True, True] and codes == [0, 0], missing_log + small_log
+    assert "cam1: cannot open camera source" in missing_log and "retrying every" in missing_log
+    assert "cam2: capture frame is 160 x 120, the sensor description expects 320 x 240" in small_log
+    assert images == []
