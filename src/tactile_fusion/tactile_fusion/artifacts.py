@@ -101,7 +101,7 @@ def check_model_fits(model, sensor: SensorDescription) -> None:
                              f"and {model.image_size} x {model.image_size} images; the sensor description "
                              f"{sensor.source or sensor.name} has cameras {list(sensor.camera_ids)}, "
                              f"{sensor.grid.rows} x {sensor.grid.cols} bins and images {sorted(sizes)}: use the "
-                             "model and the sensor description of the same sensor (tactile-fusion train --sensor ...)")
+                             "model and the sensor description of the same sensor")
 
 
 def write_json(path: str | Path, data: dict) -> None:

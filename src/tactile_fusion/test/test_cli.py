@@ -106,4 +106,4 @@ def test_a_model_for_another_sensor_is_refused(tiny_model):
     out, _ = tiny_model
     result = run("eval", "--model", str(out), "--sensor", str(CONFIG / "skin_3x3.yaml"), "--frames", "2",
                  check=False)
-    assert result.returncode == 2 and "trained for cameras" in result.stderr
+    assert result.returncode == 2 and "the model is for cameras" in result.stderr
