@@ -1,6 +1,7 @@
 """Fixtures of the system tests (real processes over Fast DDS on loopback)."""
 
 import os
+import time
 
 import pytest
 import rclpy
@@ -17,3 +18,21 @@ def ros_probe(monkeypatch):
     yield node
     node.destroy_node()
     rclpy.try_shutdown()
+
+
+@pytest.fixture
+def collect(ros_probe):
+    """collect(msg_type, topic, seconds, qos=50): the messages `ros_probe` receives on `topic` within `seconds`.
+
+    qos: a depth (reliable) or a QoS profile (qos_profile_sensor_data for the best-effort camera topics).
+    """
+    def collect_messages(msg_type, topic: str, seconds: float, qos=50) -> list:
+        received = []
+        subscription = ros_probe.create_subscription(msg_type, topic, received.append, qos)
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(ros_probe, timeout_sec=0.05)
+        ros_probe.destroy_subscription(subscription)
+        return received
+
+    return collect_messages

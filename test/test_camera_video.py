@@ -1,11 +1,9 @@
 """camera_node on real video files through OpenCV, and on sources that cannot be used: real processes, Fast DDS."""
 
-import time
 
 import cv2
 import numpy as np
 import pytest
-import rclpy
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
@@ -41,29 +39,19 @@ def decoded_frames(path):
         frames.append(frame)
 
 
-def collect_images(node, topic: str, seconds: float) -> list:
-    received = []
-    subscription = node.create_subscription(Image, topic, received.append, qos_profile_sensor_data)
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    node.destroy_subscription(subscription)
-    return received
-
-
 def camera_spec(name: str, camera_id: str, source) -> NodeSpec:
     return NodeSpec("tactile_camera_driver", "camera_node", name,
                     {"sensor_config": str(default_sensor_path()), "camera_id": camera_id, "source": str(source)})
 
 
-def test_a_video_file_is_cropped_downsampled_published_and_replayed(ros_probe, tmp_path):
+def test_a_video_file_is_cropped_downsampled_published_and_replayed(collect, tmp_path):
     camera = load_sensor().cameras[0]
     video = write_video(tmp_path / "cam0.avi", *camera.capture_size)
     expected = [crop_and_downsample(frame, camera) for frame in decoded_frames(video)]
     assert len(expected) == VIDEO_FRAMES
     process = start_node(camera_spec("video_camera", camera.camera_id, video), tmp_path)
     try:
-        images = collect_images(ros_probe, f"/tactile/{camera.camera_id}/image", seconds=5.0)
+        images = collect(Image, f"/tactile/{camera.camera_id}/image", seconds=5.0, qos=qos_profile_sensor_data)
     finally:
         codes = stop_nodes([process])
     log = (tmp_path / "video_camera.log").read_text()
@@ -83,12 +71,12 @@ def test_a_video_file_is_cropped_downsampled_published_and_replayed(ros_probe, t
     assert np.all(np.diff(stamps) > 0)
 
 
-def test_a_missing_source_and_a_wrong_frame_size_are_reported_and_the_nodes_keep_running(ros_probe, tmp_path):
+def test_a_missing_source_and_a_wrong_frame_size_are_reported_and_the_nodes_keep_running(collect, tmp_path):
     small = write_video(tmp_path / "small.avi", 160, 120)
     processes = [start_node(camera_spec("missing_camera", "cam1", tmp_path / "no_such_file.avi"), tmp_path),
                  start_node(camera_spec("small_camera", "cam2", small), tmp_path)]
     try:
-        images = collect_images(ros_probe, "/tactile/cam2/image", seconds=3.0)
+        images = collect(Image, "/tactile/cam2/image", seconds=3.0, qos=qos_profile_sensor_data)
         running = [p.poll() is None for p in processes]
     finally:
         codes = stop_nodes(processes)

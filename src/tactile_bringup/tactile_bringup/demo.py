@@ -120,10 +120,11 @@ def main(argv: list[str] | None = None) -> int:
     # rest: start the cameras only once it is up (it loads the model for a few seconds), so the scene's opening
     # rest frames are the ones it gets.
     cameras = [s for s in specs if s.package == "tactile_camera_driver"]
-    specs = [s for s in specs if s not in cameras] + cameras
+    others = [s for s in specs if s not in cameras]
+    specs = others + cameras  # the order the processes are started in
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
-    processes = [start_node(spec, log_dir) for spec in specs if spec not in cameras]
+    processes = [start_node(spec, log_dir) for spec in others]
     if not wait_for_publisher(monitor, "/tactile/force_distribution", timeout_s=60.0):
         print(f"tactile-demo: the fusion node did not come up within 60 s; see {log_dir}/", file=sys.stderr)
     processes += [start_node(spec, log_dir) for spec in cameras]

@@ -21,7 +21,7 @@ from tactile_fusion.artifacts import (
     write_json,
 )
 from tactile_fusion.data import FrameSet, load_dataset_frames, simulate_frames, split_indices
-from tactile_fusion.evaluation import evaluate, predict_frames
+from tactile_fusion.evaluation import evaluate
 from tactile_fusion.export import export_onnx, quantize_int8
 from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
@@ -97,8 +97,9 @@ def export_all(model: ForceFusionNet, out_dir: Path, calibration: FrameSet) -> d
     return paths
 
 
-def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> dict:
-    """Test metrics of every backend and precision, and each one's largest deviation from torch fp32 (N)."""
+def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> tuple[dict, dict]:
+    """Test metrics of every backend and precision, with each one's largest deviation from torch fp32 (N), and
+    the predictions: ({backend_precision: metrics}, {backend_precision: (N, rows, cols, 3) newtons})."""
     results, predictions = {}, {}
     for backend, precisions in BACKENDS.items():
         for precision in precisions:
@@ -108,7 +109,7 @@ def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> 
     reference = predictions["torch_fp32"]
     for key, predicted in predictions.items():
         results[key]["max_abs_deviation_from_torch_fp32_n"] = float(np.abs(predicted - reference).max())
-    return results
+    return results, predictions
 
 
 def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: ModelConfig,
@@ -126,9 +127,10 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
     save_model(model, out_dir, sensor.name)
     test = frames.subset(split["test"])
     export_all(model, out_dir, frames.subset(calibration_indices(split["train"])))
+    backends, predictions = evaluate_model_dir(out_dir, test, threads)
     metrics = {"data": {"source": data_source, "scene": frames.scene, "seed": frames.seed, "split": "test",
                         "frames": len(test)},
-               "backends": evaluate_model_dir(out_dir, test, threads)}
+               "backends": backends}
     metrics.update({k: metrics["backends"]["onnxruntime_fp32"][k] for k in ("rmse_bin_n", "rmse_total_n")})
     write_json(out_dir / METRICS_JSON, metrics)
     write_json(out_dir / TRAINING_JSON, {
@@ -143,8 +145,8 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
         "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
                     "torch": torch.__version__},
     })
-    predicted = predict_frames(load_predictor(out_dir, "onnxruntime", "fp32", threads), test)
-    plot_fz_maps(test.bin_forces_n, predicted, out_dir / FZ_MAP_PNG, f"{frames.scene} test split: Fz per bin")
+    plot_fz_maps(test.bin_forces_n, predictions["onnxruntime_fp32"], out_dir / FZ_MAP_PNG,
+                 f"{frames.scene} test split: Fz per bin")
     for checkpoint in out_dir.glob(CHECKPOINTS):
         checkpoint.unlink()  # training finished: the model files supersede the checkpoints
     return metrics
