@@ -62,8 +62,13 @@ def test_numerical_forces_are_finite_and_never_pull(contact_list):
     assert_physical(NUMERICAL.bin_forces(contact_list), contact_list)
 
 
+#: Depth fractions: 0 or above 1e-100. A force grows like depth^1.5 and underflows float64 below about 1e-200 m,
+#: where two different depths both give exactly 0 N (hypothesis found 2e-311): no strict growth to test there.
+DEPTH_FRACTIONS = st.one_of(st.just(0.0), st.floats(1e-100, 1.0))
+
+
 @FAST
-@given(contacts(margin_m=12e-3), st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+@given(contacts(margin_m=12e-3), DEPTH_FRACTIONS, DEPTH_FRACTIONS)
 def test_total_force_grows_with_depth(contact, a, b):
     """On the surface (the whole footprint within the 12 mm margin) the total force never falls with depth."""
     limit = max_depth_m(SENSOR, contact.shape)
