@@ -22,15 +22,16 @@ def ros_probe(monkeypatch):
 
 @pytest.fixture
 def collect(ros_probe):
-    """collect(msg_type, topic, seconds, qos=50): the messages `ros_probe` receives on `topic` within `seconds`.
+    """collect(msg_type, topic, seconds, qos=50, until=None): the messages `ros_probe` receives on `topic`.
 
+    Collects for `seconds`, or less once `until(received)` is true.
     qos: a depth (reliable) or a QoS profile (qos_profile_sensor_data for the best-effort camera topics).
     """
-    def collect_messages(msg_type, topic: str, seconds: float, qos=50) -> list:
+    def collect_messages(msg_type, topic: str, seconds: float, qos=50, until=None) -> list:
         received = []
         subscription = ros_probe.create_subscription(msg_type, topic, received.append, qos)
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end and not (until and until(received)):
             rclpy.spin_once(ros_probe, timeout_sec=0.05)
         ros_probe.destroy_subscription(subscription)
         return received

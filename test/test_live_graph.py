@@ -16,6 +16,18 @@ from tactile_msgs.msg import ImageBundle
 
 pytestmark = pytest.mark.system
 DATA = Path(__file__).parent / "data"
+FULL, DEGRADED = ("cam0", "cam1", "cam2", "cam3"), ("cam0", "cam2", "cam3")
+
+
+def recovered_from_dropout(bundles: list[ImageBundle]) -> bool:
+    """Full bundles, then bundles without cam1, then full ones again (in that order, anywhere in the stream)."""
+    cameras = [tuple(m.camera_ids) for m in bundles]
+    if FULL not in cameras:
+        return False
+    first_full = cameras.index(FULL)
+    if DEGRADED not in cameras[first_full:]:
+        return False
+    return FULL in cameras[cameras.index(DEGRADED, first_full):]
 
 
 def test_a_dropped_camera_degrades_bundles_and_they_recover(collect, tmp_path):
@@ -25,17 +37,15 @@ def test_a_dropped_camera_degrades_bundles_and_they_recover(collect, tmp_path):
              NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": config})]
     processes = [start_node(spec, tmp_path) for spec in specs]
     try:
-        bundles = collect(ImageBundle, "/tactile/image_bundle", seconds=14.0)
+        # The scene loops every 7.5 s; the probe may first see bundles in the dropout window on a loaded machine.
+        bundles = collect(ImageBundle, "/tactile/image_bundle", seconds=30.0, until=recovered_from_dropout)
     finally:
         codes = stop_nodes(processes)
     logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
     assert codes == [0, 0], logs
     assert len(bundles) > 100, logs
-    cameras = [tuple(m.camera_ids) for m in bundles]
-    full, degraded = ("cam0", "cam1", "cam2", "cam3"), ("cam0", "cam2", "cam3")
-    assert set(cameras) <= {full, degraded}
-    first_degraded = cameras.index(degraded)
-    assert full in cameras[:first_degraded] and full in cameras[first_degraded:], "never recovered"
+    assert recovered_from_dropout(bundles), [tuple(m.camera_ids) for m in bundles]
+    assert {tuple(m.camera_ids) for m in bundles} <= {FULL, DEGRADED}
     stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in bundles])
     assert np.all(np.diff(stamps) > 0)
     for msg in bundles:

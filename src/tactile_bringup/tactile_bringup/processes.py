@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 from ament_index_python.packages import get_package_prefix
 
 from tactile_bringup.graph import NodeSpec
+
+#: Time a stuck node gets to write its stacks before it is killed.
+STACK_DUMP_S = 1.0
 
 
 def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
@@ -21,7 +25,11 @@ def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None)
 
 
 def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
-    """Interrupt every node (SIGINT, as Ctrl-C), kill those that do not exit in time; their exit codes."""
+    """Interrupt every node (SIGINT, as Ctrl-C), kill those that do not exit in time; their exit codes.
+
+    A node that is killed first gets SIGUSR1, which makes it print its threads' stacks into its log
+    (tactile_conversions.node_main), so that the log says where it was stuck.
+    """
     for process in processes:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
@@ -29,6 +37,8 @@ def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> li
         try:
             process.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
+            process.send_signal(signal.SIGUSR1)
+            time.sleep(STACK_DUMP_S)
             process.kill()
             process.wait()
     return [process.returncode for process in processes]

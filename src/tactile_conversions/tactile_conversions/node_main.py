@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import faulthandler
+import signal
 from collections.abc import Callable
 
 import rclpy
@@ -10,7 +12,16 @@ from rclpy.node import Node
 
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
-    """Spin the node built by `make_node` until interrupted (SIGINT) or terminated (SIGTERM, ros2 launch)."""
+    """Spin the node built by `make_node` until interrupted (SIGINT) or terminated (SIGTERM, ros2 launch).
+
+    rclpy's signal handler shuts the ROS context down at once, from another thread, wherever the node is: in
+    its constructor or in a callback a `create_*` or `publish` then fails ("context is invalid"). Such an
+    error after shutdown was requested is the shutdown itself, so it ends the node cleanly (exit code 0).
+
+    SIGUSR1 (`kill -USR1 <pid>`) prints the stack of every thread to stderr and the node keeps running: how to
+    see where a node that does not stop is stuck.
+    """
+    faulthandler.register(signal.SIGUSR1)
     rclpy.init(args=args)
     node = None
     try:
@@ -18,6 +29,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -1,0 +1,55 @@
+"""start_node / stop_nodes on real processes: a node that is asked for its stacks, a process that will not stop."""
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from tactile_bringup.graph import NodeSpec
+from tactile_bringup.processes import start_node, stop_nodes
+from tactile_description import default_sensor_path
+
+pytestmark = pytest.mark.system
+STACK_HEADER = "most recent call first"
+
+
+def wait_for_text(path, text: str, timeout_s: float) -> str:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        content = path.read_text() if path.exists() else ""
+        if text in content:
+            return content
+        time.sleep(0.05)
+    return path.read_text()
+
+
+def test_a_node_prints_its_stacks_on_sigusr1_and_keeps_running(ros_probe, tmp_path):
+    spec = NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": str(default_sensor_path())})
+    process = start_node(spec, tmp_path)
+    try:
+        log = wait_for_text(tmp_path / "bundle.log", "bundling cameras", timeout_s=30.0)
+        assert "bundling cameras" in log, log
+        process.send_signal(signal.SIGUSR1)
+        log = wait_for_text(tmp_path / "bundle.log", "in <module>", timeout_s=10.0)  # the stack's last line
+        assert STACK_HEADER in log and "in run_node" in log, log
+        time.sleep(0.3)
+        assert process.poll() is None, log
+    finally:
+        codes = stop_nodes([process])
+    assert codes == [0], (tmp_path / "bundle.log").read_text()
+
+
+def test_a_process_that_ignores_ctrl_c_is_killed_with_its_stacks_in_its_log(tmp_path):
+    stubborn = ("import faulthandler, signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); "
+                "faulthandler.register(signal.SIGUSR1); print('ready', flush=True); time.sleep(60)")
+    log_path = tmp_path / "stubborn.log"
+    with open(log_path, "w") as log:
+        process = subprocess.Popen([sys.executable, "-c", stubborn], stdout=log, stderr=subprocess.STDOUT)
+    assert "ready" in wait_for_text(log_path, "ready", timeout_s=10.0)
+    started = time.monotonic()
+    assert stop_nodes([process], timeout_s=0.5) == [-signal.SIGKILL]
+    assert time.monotonic() - started < 5.0
+    log = log_path.read_text()
+    assert STACK_HEADER in log and "in <module>" in log, log
