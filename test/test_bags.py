@@ -41,18 +41,15 @@ def spin_until(node, condition, timeout_s: float) -> None:
         rclpy.spin_once(node, timeout_sec=0.05)
 
 
-def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, tmp_path):
+def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, tmp_path):
     config = str(default_sensor_path())
     sensor = load_sensor(config)
     specs = [NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_cameras", {"sensor_config": config}),
              NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": config})]
     processes = [start_node(spec, tmp_path / "logs") for spec in specs]
-    live = []
     try:
-        subscription = ros_probe.create_subscription(Image, "/tactile/cam0/image", live.append,
-                                                      qos_profile_sensor_data)
-        spin_until(ros_probe, lambda: live, timeout_s=20.0)  # the graph is up once images flow
-        ros_probe.destroy_subscription(subscription)
+        # The graph is up once images flow.
+        live = collect(Image, "/tactile/cam0/image", seconds=20.0, qos=qos_profile_sensor_data, until=bool)
         assert live, "the simulated cameras never published"
         recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", str(RECORD_S))
         unknown = tactile_bag("record", str(tmp_path / "other"), "--duration", "1", "--topics", "/tactile/nothing",
