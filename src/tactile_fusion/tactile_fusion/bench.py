@@ -1,19 +1,29 @@
-"""Inference speed of every backend and precision: milliseconds per frame (all cameras), batch of one.
+"""Inference speed of every backend and precision, next to its accuracy: what accuracy costs in time.
 
-Each backend runs the same frame `runs` times after a warm-up; the figure is the median, with the 90th
+Speed: milliseconds per frame (all cameras), batch of one. The backends take turns in `ROUNDS` blocks of
+`runs / ROUNDS` calls each (after a warm-up), so that a change of the machine's state during the benchmark (another
+process, clock changes) reaches all of them alike instead of the one that happened to run then; within a block a
+backend runs back to back, as in the fusion node. The figure is the median over all calls, with the 90th
 percentile, and the ratio to ONNX Runtime float32 measured in the same run (the baseline).
+
+Accuracy: the test-split metrics of each backend and precision that `tactile-fusion train` wrote into the model
+directory's metrics.json (None for a directory without one).
 """
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from tactile_fusion.artifacts import METRICS_JSON, default_model_dir
 from tactile_fusion.inference import BACKENDS, load_predictor
 
 BASELINE = "onnxruntime_fp32"
+#: Blocks per backend; each backend's timed calls are spread over this many turns.
+ROUNDS = 5
 
 
 def synthetic_frame(camera_count: int, image_size: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -25,31 +35,51 @@ def synthetic_frame(camera_count: int, image_size: int, seed: int = 0) -> tuple[
     return images, reference
 
 
-def time_predictor(predictor, images: np.ndarray, reference: np.ndarray, runs: int, warmup: int) -> dict:
-    for _ in range(warmup):
-        predictor.predict(images, reference)
-    times = np.empty(runs)
-    for i in range(runs):
+def call_times_s(predictor, images: np.ndarray, reference: np.ndarray, calls: int) -> list[float]:
+    """Wall time of each of `calls` predict() calls on the same frame."""
+    times = []
+    for _ in range(calls):
         started = time.perf_counter()
         predictor.predict(images, reference)
-        times[i] = time.perf_counter() - started
-    return {"ms_per_frame": float(np.median(times) * 1e3), "p90_ms": float(np.percentile(times, 90) * 1e3)}
+        times.append(time.perf_counter() - started)
+    return times
+
+
+def recorded_accuracy(model_dir: Path) -> dict[str, dict]:
+    """{backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n}} from the model
+    directory's metrics.json; empty when it has none."""
+    path = model_dir / METRICS_JSON
+    if not path.exists():
+        return {}
+    backends = json.loads(path.read_text()).get("backends", {})
+    return {key: {"rmse_bin_fz_n": entry["rmse_bin_n"][2], "rmse_total_fz_n": entry["rmse_total_n"][2],
+                  "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n")}
+            for key, entry in backends.items()}
 
 
 def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int = 30,
               threads: int | None = 1) -> dict:
-    """{backend_precision: {ms_per_frame, p90_ms, ratio_to_baseline}} plus the setting, for one model directory."""
-    results = {}
-    camera_count = image_size = None
-    for backend, precisions in BACKENDS.items():
-        for precision in precisions:
-            predictor = load_predictor(model_dir, backend, precision, threads)
-            if camera_count is None:
-                camera_count, image_size = len(predictor.camera_ids), predictor.image_size
-                images, reference = synthetic_frame(camera_count, image_size)
-            results[f"{backend}_{precision}"] = time_predictor(predictor, images, reference, runs, warmup)
+    """{backend_precision: {ms_per_frame, p90_ms, ratio_to_baseline, accuracy}} plus the setting, for one model
+    directory."""
+    model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
+    predictors = {f"{backend}_{precision}": load_predictor(model_dir, backend, precision, threads)
+                  for backend, precisions in BACKENDS.items() for precision in precisions}
+    baseline = predictors[BASELINE]
+    images, reference = synthetic_frame(len(baseline.camera_ids), baseline.image_size)
+    times = {key: [] for key in predictors}
+    for predictor in predictors.values():
+        call_times_s(predictor, images, reference, warmup)
+    block = max(1, -(-runs // ROUNDS))
+    while any(len(t) < runs for t in times.values()):
+        for key, predictor in predictors.items():
+            times[key] += call_times_s(predictor, images, reference, min(block, runs - len(times[key])))
+    accuracy = recorded_accuracy(model_dir)
+    results = {key: {"ms_per_frame": float(np.median(t) * 1e3), "p90_ms": float(np.percentile(t, 90) * 1e3),
+                     "accuracy": accuracy.get(key)}
+               for key, t in times.items()}
     for entry in results.values():
         entry["ratio_to_baseline"] = entry["ms_per_frame"] / results[BASELINE]["ms_per_frame"]
-    return {"backends": results, "baseline": BASELINE, "cameras": camera_count, "image_size": image_size,
-            "batch": 1, "runs": runs, "threads": threads,
-            "statistic": "median over runs of one predict() call, input checks included"}
+    return {"backends": results, "baseline": BASELINE, "cameras": len(baseline.camera_ids),
+            "image_size": baseline.image_size, "batch": 1, "runs": runs, "rounds": ROUNDS, "threads": threads,
+            "statistic": "median over runs of one predict() call, input checks included",
+            "accuracy_source": f"{METRICS_JSON} (test split, written by tactile-fusion train)" if accuracy else None}

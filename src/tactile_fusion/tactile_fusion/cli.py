@@ -149,8 +149,11 @@ def cmd_bench(args) -> int:
         print(json.dumps(report))
     else:
         for name, entry in report["backends"].items():
+            accuracy = entry["accuracy"]
+            error = (f"  test split Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
+                     f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")
             print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
-                  f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']})")
+                  f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']}){error}")
     return 0
 
 
@@ -220,7 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
     common(p, True)
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("bench", help="milliseconds per frame of every backend and precision, batch of one")
+    p = sub.add_parser("bench", help="milliseconds per frame of every backend and precision, batch of one, next to "
+                       "its test-split accuracy")
     common(p, True)
     p.add_argument("--runs", type=int, default=300, help="timed runs per backend (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -70,6 +71,21 @@ def test_bench_json_reports_each_backend_and_precision(tiny_model):
     assert all(entry["ms_per_frame"] > 0 for entry in report["backends"].values())
     assert report["backends"]["onnxruntime_fp32"]["ratio_to_baseline"] == 1.0
     assert report["cameras"] == 4 and report["batch"] == 1
+    trained = json.loads((out / METRICS_JSON).read_text())["backends"]
+    for name, entry in report["backends"].items():  # the accuracy the training measured, next to the speed
+        assert entry["accuracy"]["rmse_bin_fz_n"] == trained[name]["rmse_bin_n"][2]
+        assert entry["accuracy"]["rmse_total_fz_n"] == trained[name]["rmse_total_n"][2]
+    assert "mN per bin" in run("bench", "--model", str(out), "--runs", "5").stdout
+
+
+def test_bench_without_recorded_metrics_reports_speed_only(tiny_model, tmp_path):
+    out, _ = tiny_model
+    bare = tmp_path / "model"
+    shutil.copytree(out, bare)
+    (bare / METRICS_JSON).unlink()
+    report = json.loads(run("bench", "--model", str(bare), "--runs", "5", "--json").stdout)
+    assert report["accuracy_source"] is None
+    assert all(e["accuracy"] is None and e["ms_per_frame"] > 0 for e in report["backends"].values())
 
 
 def test_export_rewrites_the_onnx_graphs(tiny_model):
