@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from visualization_msgs.msg import Marker, MarkerArray
 
-from tactile_bringup.graph import NodeSpec
-from tactile_bringup.processes import start_node, stop_nodes
-from tactile_description import default_sensor_path
+from tactile_bringup.graph import NodeSpec, sensor_graph
+from tactile_bringup.processes import start_graph, start_node, stop_nodes
+from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.artifacts import default_model_dir
 from tactile_msgs.msg import ImageBundle
 
@@ -69,3 +70,22 @@ def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(tmp_path):
     shipped = json.loads((default_model_dir() / "metrics.json").read_text())
     # The demo scene (a 1 mm press sliding over the surface) is not the test split: allow twice the test error.
     assert summary["rmse_total_n"][2] < 2 * shipped["rmse_total_n"][2] + 0.05, summary
+
+
+def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_path):
+    """The fusion node estimates every bundle (40 Hz) but builds RViz markers only `markers_rate_hz` times a second."""
+    config = str(default_sensor_path())
+    graph = sensor_graph(load_sensor(config), config, "sim", "demo")
+    fusion = next(s for s in graph if s.executable == "fusion_node")
+    graph[graph.index(fusion)] = NodeSpec(fusion.package, fusion.executable, fusion.name,
+                                          {**fusion.parameters, "markers_rate_hz": 4.0})
+    _, processes = start_graph(graph, tmp_path, ros_probe)
+    try:
+        first = collect(MarkerArray, "/tactile/force_markers", seconds=30.0, until=bool)
+        markers = collect(MarkerArray, "/tactile/force_markers", seconds=3.0)
+    finally:
+        codes = stop_nodes(processes)
+    logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
+    assert codes == [0, 0, 0], logs
+    assert first and 1 <= len(markers) <= 3.0 * 4.0 + 1, (len(markers), logs)
+    assert all(m.markers[0].action == Marker.DELETEALL for m in first + markers)

@@ -22,7 +22,7 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import start_node, stop_nodes
+from tactile_bringup.processes import ESTIMATE_TOPIC, start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.metrics import force_metrics
@@ -42,7 +42,7 @@ class Monitor(Node):
         self.violations: list[str] = []
         self.missing_cameras: set[str] = set()
         self.last: tuple[float, float] | None = None  # (estimated Fz, true Fz)
-        self.create_subscription(ForceDistribution, "/tactile/force_distribution", self.on_estimate, 50)
+        self.create_subscription(ForceDistribution, ESTIMATE_TOPIC, self.on_estimate, 50)
         self.create_subscription(ForceDistribution, "/tactile/ground_truth/force_distribution", self.on_truth, 50)
 
     def forces(self, msg: ForceDistribution) -> np.ndarray:
@@ -90,16 +90,6 @@ class Monitor(Node):
         }
 
 
-def wait_for_publisher(node: Node, topic: str, timeout_s: float) -> bool:
-    """True once some node publishes `topic` (discovered over DDS), False after `timeout_s`."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if node.count_publishers(topic):
-            return True
-        rclpy.spin_once(node, timeout_sec=0.1)
-    return False
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=20.0, help="seconds to run the graph (default 20)")
@@ -115,19 +105,10 @@ def main(argv: list[str] | None = None) -> int:
     sensor_config = args.sensor or str(default_sensor_path())
     sensor = load_sensor(sensor_config)
     log_dir = Path(args.log_dir)
-    specs = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model)
-    # The fusion node takes its reference frames from the first bundles it sees, which must show the surface at
-    # rest: start the cameras only once it is up (it loads the model for a few seconds), so the scene's opening
-    # rest frames are the ones it gets.
-    cameras = [s for s in specs if s.package == "tactile_camera_driver"]
-    others = [s for s in specs if s not in cameras]
-    specs = others + cameras  # the order the processes are started in
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
-    processes = [start_node(spec, log_dir) for spec in others]
-    if not wait_for_publisher(monitor, "/tactile/force_distribution", timeout_s=60.0):
-        print(f"tactile-demo: the fusion node did not come up within 60 s; see {log_dir}/", file=sys.stderr)
-    processes += [start_node(spec, log_dir) for spec in cameras]
+    specs, processes = start_graph(sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model),
+                                   log_dir, monitor)
     started = time.monotonic()
     next_report = started + 1.0
     try:

@@ -4,12 +4,18 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
+import rclpy
 from ament_index_python.packages import get_package_prefix
+from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec
+
+#: The topic whose publisher shows that the fusion node is up.
+ESTIMATE_TOPIC = "/tactile/force_distribution"
 
 #: Time a stuck node gets to write its stacks before it is killed.
 STACK_DUMP_S = 1.0
@@ -24,6 +30,33 @@ def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None)
     with open(log_dir / f"{spec.name}.log", "w") as log:  # the child keeps its own copy of the descriptor
         return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT,
                                 env=env)
+
+
+def wait_for_publisher(node: Node, topic: str, timeout_s: float) -> bool:
+    """True once some node publishes `topic` (discovered over DDS), False after `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if node.count_publishers(topic):
+            return True
+        rclpy.spin_once(node, timeout_sec=0.1)
+    return False
+
+
+def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
+                timeout_s: float = 60.0) -> tuple[list[NodeSpec], list[subprocess.Popen]]:
+    """Start the nodes of a sensor graph, cameras last; (the specs in start order, their processes).
+
+    The fusion node takes its reference frames from the first bundles it sees, which must show the surface at
+    rest: the cameras start only once `probe` sees it publish (it loads the model for a few seconds), so a
+    scene's opening rest frames are the ones it gets. Returns after `timeout_s` without it, with a message.
+    """
+    cameras = [s for s in specs if s.package == "tactile_camera_driver"]
+    others = [s for s in specs if s not in cameras]
+    processes = [start_node(spec, log_dir) for spec in others]
+    if not wait_for_publisher(probe, ESTIMATE_TOPIC, timeout_s):
+        print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
+    processes += [start_node(spec, log_dir) for spec in cameras]
+    return others + cameras, processes
 
 
 def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:

@@ -8,12 +8,19 @@ Reference frames: the model sees each camera's difference to a frame taken at re
 `~/capture_reference` service, std_srvs/Trigger) the node averages the next `reference_bundles` complete
 bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them.
 
+RViz markers (one arrow per loaded bin) cost far more than an estimate: about 26 ms to build and 12 ms to
+serialise for a full surface, against about 1 ms of inference. Published with every estimate at the sensor's 40 Hz
+they made the node fall behind its bundles (estimates 170-190 ms old, `tactile-latency`); they are published at
+most `markers_rate_hz` times a second, which is what a display needs.
+
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
 (which shows the model its reference frame there: "no contact"), and the estimate lists it in
 `missing_camera_ids`.
 """
 
 from __future__ import annotations
+
+import time
 
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
@@ -29,6 +36,9 @@ from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
+#: Default `markers_rate_hz`: enough for a display, cheap enough for the node (see above).
+MARKERS_RATE_HZ = 10.0
+
 
 class FusionNode(Node):
     def __init__(self) -> None:
@@ -40,6 +50,12 @@ class FusionNode(Node):
         threads = int(self.declare_parameter("threads", 1).value)
         reference_bundles = int(self.declare_parameter("reference_bundles", REFERENCE_BUNDLES).value)
         self.publish_markers = bool(self.declare_parameter("publish_markers", True).value)
+        markers_rate_hz = float(self.declare_parameter("markers_rate_hz", MARKERS_RATE_HZ).value)
+        if not markers_rate_hz > 0:
+            raise ValueError(f"tactile_fusion: markers_rate_hz must be > 0, got {markers_rate_hz} (to publish no "
+                             "markers, set publish_markers false)")
+        self.markers_period_s = 1.0 / markers_rate_hz
+        self.last_markers_s = -float("inf")
         self.sensor = load_sensor(sensor_config or None)
         self.predictor = load_predictor(model_dir or None, backend, precision, threads)
         check_model_fits(self.predictor, self.sensor)
@@ -81,7 +97,9 @@ class FusionNode(Node):
                                               present, missing)
         self.forces_pub.publish(distribution)
         self.wrench_pub.publish(wrench_msg(distribution))
-        if self.publish_markers:
+        now_s = time.monotonic()
+        if self.publish_markers and now_s - self.last_markers_s >= self.markers_period_s:
+            self.last_markers_s = now_s
             self.markers_pub.publish(force_markers(forces, self.sensor.grid, bundle.header.stamp,
                                                    self.sensor.frame_id))
 

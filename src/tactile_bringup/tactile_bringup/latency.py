@@ -1,0 +1,161 @@
+"""`tactile-latency`: how long the live graph takes from a camera capture to the force estimate, as JSON.
+
+Runs the sensor graph on the simulated sensor (the nodes `tactile-demo` starts), waits for its first estimate and
+`--settle` seconds more, then measures `--windows` windows of `--window` seconds each. A message's latency is its
+arrival in this process minus its capture stamp (the bundle's stamp, the median of its cameras' stamps, which the
+estimate keeps): for the bundles on /tactile/image_bundle (cameras and synchronisation) and for the estimates on
+/tactile/force_distribution (plus inference and publication). Per window the median over its messages; reported
+are the median over the windows and their range. Exits 1 when a window got no estimate or a node failed.
+
+The baseline, measured in the same run before the graph starts: one predict() of the fusion node's model, backend,
+precision and thread count in this process (median of 300 calls), i.e. the inference alone. `ratio_to_inference`
+says how much the graph around the network costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+
+from tactile_bringup.graph import sensor_graph
+from tactile_bringup.processes import ESTIMATE_TOPIC, start_graph, stop_nodes
+from tactile_conversions.ros_time import time_to_seconds
+from tactile_description import default_sensor_path, load_sensor
+from tactile_fusion.bench import call_times_s, synthetic_frame
+from tactile_fusion.inference import BACKENDS, load_predictor
+from tactile_msgs.msg import ForceDistribution, ImageBundle
+
+BUNDLE_TOPIC = "/tactile/image_bundle"
+#: The fusion node's default intra-op thread count, which the baseline uses too.
+FUSION_THREADS = 1
+BASELINE_CALLS = 300
+#: How long the cameras may take to start and the fusion node to take its reference frames.
+FIRST_ESTIMATE_TIMEOUT_S = 60.0
+
+
+class LatencyProbe(Node):
+    """Records, per topic, the latency of every message received since the last `take()`."""
+
+    def __init__(self) -> None:
+        super().__init__("tactile_latency_probe")
+        self.latencies_s: dict[str, list[float]] = {BUNDLE_TOPIC: [], ESTIMATE_TOPIC: []}
+        self.create_subscription(ImageBundle, BUNDLE_TOPIC, lambda m: self.record(BUNDLE_TOPIC, m), 50)
+        self.create_subscription(ForceDistribution, ESTIMATE_TOPIC, lambda m: self.record(ESTIMATE_TOPIC, m), 50)
+
+    def record(self, topic: str, msg) -> None:
+        now_s = self.get_clock().now().nanoseconds * 1e-9
+        self.latencies_s[topic].append(now_s - time_to_seconds(msg.header.stamp))
+
+    def take(self) -> dict[str, list[float]]:
+        taken = {topic: list(values) for topic, values in self.latencies_s.items()}
+        for values in self.latencies_s.values():
+            values.clear()
+        return taken
+
+
+def spin_for(node: Node, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+
+
+def spin_until_estimate(probe: LatencyProbe, timeout_s: float) -> bool:
+    """True once `probe` has received an estimate (the fusion node has its reference and publishes)."""
+    end = time.monotonic() + timeout_s
+    while not probe.latencies_s[ESTIMATE_TOPIC] and time.monotonic() < end:
+        rclpy.spin_once(probe, timeout_sec=0.05)
+    return bool(probe.latencies_s[ESTIMATE_TOPIC])
+
+
+def summarise(window_medians_ms: list[float]) -> dict:
+    """Median and range over the windows (None where a window had no message)."""
+    valid = [m for m in window_medians_ms if m is not None]
+    return {"median_ms": statistics.median(valid) if valid else None,
+            "range_ms": [min(valid), max(valid)] if valid else None, "windows_ms": window_medians_ms}
+
+
+def inference_ms(model_dir: str, backend: str, precision: str) -> float:
+    """Median time of one predict() of a four-camera frame, as the fusion node runs it."""
+    predictor = load_predictor(model_dir or None, backend, precision, FUSION_THREADS)
+    images, reference = synthetic_frame(len(predictor.camera_ids), predictor.image_size)
+    call_times_s(predictor, images, reference, 30)
+    return 1e3 * statistics.median(call_times_s(predictor, images, reference, BASELINE_CALLS))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="tactile-latency", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--windows", type=int, default=5, help="measurement windows (default %(default)s)")
+    parser.add_argument("--window", type=float, default=4.0, help="seconds per window (default %(default)s)")
+    parser.add_argument("--settle", type=float, default=3.0,
+                        help="seconds between the first estimate and the first window (default %(default)s)")
+    parser.add_argument("--scene", default="demo", help="simulator scene name or YAML file (default: demo)")
+    parser.add_argument("--sensor", default="", help="sensor description YAML (default: the installed one)")
+    parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
+    parser.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
+    parser.add_argument("--precision", choices=["fp32", "int8", "fp16"], default="fp32")
+    parser.add_argument("--log-dir", default="log/latency", help="where the nodes' output goes (default %(default)s)")
+    args = parser.parse_args(argv)
+    if args.windows < 1 or args.window <= 0 or args.settle < 0:
+        parser.error("--windows must be >= 1, --window > 0 and --settle >= 0")
+    if args.precision not in BACKENDS[args.backend]:
+        parser.error(f"backend {args.backend} supports precisions {list(BACKENDS[args.backend])}")
+
+    sensor_config = args.sensor or str(default_sensor_path())
+    sensor = load_sensor(sensor_config)
+    baseline_ms = inference_ms(args.model, args.backend, args.precision)
+    graph = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
+                         precision=args.precision)
+    rclpy.init()
+    probe = LatencyProbe()
+    windows = []
+    specs, processes = start_graph(graph, Path(args.log_dir), probe)
+    try:
+        if not spin_until_estimate(probe, FIRST_ESTIMATE_TIMEOUT_S):
+            print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
+                  file=sys.stderr)
+        spin_for(probe, args.settle)
+        probe.take()
+        for _ in range(args.windows):
+            spin_for(probe, args.window)
+            windows.append(probe.take())
+    except KeyboardInterrupt:
+        pass
+    finally:
+        codes = stop_nodes(processes)
+        probe.destroy_node()
+        rclpy.try_shutdown()
+
+    def medians(topic: str) -> list[float | None]:
+        return [1e3 * statistics.median(w[topic]) if w[topic] else None for w in windows]
+
+    estimate = summarise(medians(ESTIMATE_TOPIC))
+    report = {
+        "estimate_latency": estimate,
+        "bundle_latency": summarise(medians(BUNDLE_TOPIC)),
+        "estimates_per_window": [len(w[ESTIMATE_TOPIC]) for w in windows],
+        "baseline": "inference_ms",
+        "inference_ms": baseline_ms,
+        "ratio_to_inference": estimate["median_ms"] / baseline_ms if estimate["median_ms"] is not None else None,
+        "backend": args.backend, "precision": args.precision, "threads": FUSION_THREADS,
+        "window_s": args.window, "scene": args.scene,
+        "statistic": "per window the median over its messages of arrival here minus capture stamp; then the "
+                     "median over the windows",
+        "exit_codes": {spec.name: code for spec, code in zip(specs, codes, strict=True)},
+    }
+    print(json.dumps(report))
+    if not all(report["estimates_per_window"]) or any(codes):
+        print(f"tactile-latency: a window without estimates or a node that failed; node logs in {args.log_dir}/",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,31 @@
+"""System test of `tactile-latency`: the whole simulated graph as real processes, measured from outside."""
+
+import json
+import os
+import subprocess
+
+import pytest
+
+pytestmark = pytest.mark.system
+
+
+def test_latency_reports_each_window_against_the_inference_baseline(tmp_path):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + (os.getpid() + 2) % 80), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    run = subprocess.run(["tactile-latency", "--windows", "2", "--window", "2", "--settle", "1", "--log-dir",
+                          str(tmp_path)], env=env, capture_output=True, text=True, timeout=120)
+    logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
+    assert run.returncode == 0, run.stderr + logs
+    report = json.loads(run.stdout.strip().splitlines()[-1])
+    assert set(report["exit_codes"].values()) == {0}
+    assert len(report["estimate_latency"]["windows_ms"]) == 2 and all(report["estimates_per_window"])
+    estimate, bundle = report["estimate_latency"]["median_ms"], report["bundle_latency"]["median_ms"]
+    # An estimate carries its bundle's capture stamp and leaves after the bundle arrived and went through the model.
+    assert 0 < bundle < estimate
+    assert report["inference_ms"] > 0
+    assert report["ratio_to_inference"] == pytest.approx(estimate / report["inference_ms"])
+
+
+def test_latency_rejects_a_bad_window(tmp_path):
+    run = subprocess.run(["tactile-latency", "--window", "0", "--log-dir", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "--window > 0" in run.stderr
