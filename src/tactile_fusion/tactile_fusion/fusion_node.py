@@ -33,7 +33,7 @@ from tactile_conversions.node_main import run_node
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.inference import InputError, load_predictor
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ProcessingLoad, ReferenceFrames
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: Default `markers_rate_hz`: enough for a display, cheap enough for the node (see above).
@@ -61,6 +61,7 @@ class FusionNode(Node):
         check_model_fits(self.predictor, self.sensor)
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.reference = ReferenceFrames(self.sensor.n_cameras, self.image_shape, reference_bundles)
+        self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
         self.forces_pub = self.create_publisher(ForceDistribution, "/tactile/force_distribution", 10)
         self.wrench_pub = self.create_publisher(WrenchStamped, "/tactile/wrench", 10)
         self.markers_pub = self.create_publisher(MarkerArray, "/tactile/force_markers", 10)
@@ -76,6 +77,16 @@ class FusionNode(Node):
         return response
 
     def on_bundle(self, bundle: ImageBundle) -> None:
+        started = time.perf_counter()
+        self.estimate(bundle)
+        if self.load.add(time.perf_counter() - started):
+            self.get_logger().warning(
+                f"falling behind the cameras: a bundle takes {1e3 * self.load.mean_s:.1f} ms on average, they come "
+                f"every {1e3 * self.load.frame_period_s:.1f} ms, so estimates arrive later and later; use the "
+                "onnxruntime backend, a lower markers_rate_hz or publish_markers false", throttle_duration_sec=10.0)
+
+    def estimate(self, bundle: ImageBundle) -> None:
+        """Capture the reference or publish the estimate of one bundle."""
         images, camera_ok, problems = frame_from_images(bundle.camera_ids, bundle.images, self.sensor.camera_ids,
                                                         self.image_shape)
         for reason, detail in problems:

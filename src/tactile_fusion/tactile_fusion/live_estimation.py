@@ -1,4 +1,5 @@
-"""The reference frames of live estimation, without ROS: shared by the fusion node and offline bag evaluation.
+"""Live estimation without ROS: the reference frames (shared by the fusion node and offline bag evaluation) and
+the check that the fusion node keeps up with its cameras.
 
 The model needs each camera's frame at rest; the live graph takes the pixel-wise mean of the first `count`
 complete bundles (nothing may touch the surface meanwhile) and can be asked to take it again.
@@ -43,3 +44,29 @@ class ReferenceFrames:
             return False
         self.images = np.rint(self._sum / self._frames).astype(np.uint8)
         return True
+
+
+class ProcessingLoad:
+    """Whether handling a bundle takes longer, on average, than the time between two of them.
+
+    A node slower than its input drops nothing at first: the bundles wait in its subscription queue and every
+    estimate is older than the one before, until the queue is full (the torch fp16 backend at 22 ms per frame
+    behind 40 Hz cameras: estimates 150-270 ms old). Nothing in the estimates shows that, hence this check.
+    The average is exponential with weight `smoothing` for the newest duration, so that one slow bundle (the
+    first inference, a marker array) does not count as falling behind.
+    """
+
+    def __init__(self, frame_period_s: float, smoothing: float = 0.1):
+        if not frame_period_s > 0 or not 0 < smoothing <= 1:
+            raise ValueError(f"need frame_period_s > 0 and 0 < smoothing <= 1, got {frame_period_s}, {smoothing}")
+        self.frame_period_s = frame_period_s
+        self.smoothing = smoothing
+        self.mean_s: float | None = None
+
+    def add(self, duration_s: float) -> bool:
+        """Count one bundle's handling time; True while the average exceeds the frame period."""
+        if self.mean_s is None:
+            self.mean_s = duration_s
+        else:
+            self.mean_s += self.smoothing * (duration_s - self.mean_s)
+        return self.mean_s > self.frame_period_s

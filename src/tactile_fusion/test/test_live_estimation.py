@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tactile_fusion.live_estimation import ReferenceFrames
+from tactile_fusion.live_estimation import ProcessingLoad, ReferenceFrames
 
 
 def test_reference_is_the_rounded_mean_of_complete_frames():
@@ -28,3 +28,20 @@ def test_reset_takes_the_reference_again():
 def test_a_reference_needs_a_frame():
     with pytest.raises(ValueError, match="at least one frame"):
         ReferenceFrames(4, (128, 128), count=0)
+
+
+def test_one_slow_bundle_is_not_falling_behind_but_a_slow_stream_is_until_it_recovers():
+    load = ProcessingLoad(frame_period_s=0.025, smoothing=0.1)
+    assert not load.add(0.002)
+    assert not load.add(0.040)  # a marker array or the first inference: the average stays below 25 ms
+    behind = [load.add(0.030) for _ in range(40)]  # slower than the cameras, bundle after bundle
+    assert not behind[0] and behind[-1]
+    recovered = [load.add(0.002) for _ in range(40)]
+    assert recovered[0] and not recovered[-1]
+    assert load.mean_s == pytest.approx(0.002, abs=1e-3)
+
+
+@pytest.mark.parametrize("period, smoothing", [(0.0, 0.1), (-1.0, 0.1), (0.025, 0.0), (0.025, 1.5)])
+def test_processing_load_rejects_bad_settings(period, smoothing):
+    with pytest.raises(ValueError, match="frame_period_s"):
+        ProcessingLoad(period, smoothing)
