@@ -73,7 +73,7 @@ def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(tmp_path):
 
 
 def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_path):
-    """The fusion node estimates every bundle (40 Hz) but builds RViz markers only `markers_rate_hz` times a second."""
+    """The fusion node builds RViz markers at most `markers_rate_hz` times a second, not with every 40 Hz estimate."""
     config = str(default_sensor_path())
     graph = sensor_graph(load_sensor(config), config, "sim", "demo")
     fusion = next(s for s in graph if s.executable == "fusion_node")

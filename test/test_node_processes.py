@@ -10,7 +10,7 @@ import time
 import pytest
 
 from tactile_bringup.graph import NodeSpec
-from tactile_bringup.processes import start_node, stop_nodes
+from tactile_bringup.processes import SIGINT_REPEAT_S, start_node, stop_nodes
 from tactile_description import default_sensor_path
 
 pytestmark = pytest.mark.system
@@ -54,8 +54,10 @@ def test_a_node_that_inherited_ctrl_c_ignored_and_missed_the_first_one_still_sto
         process = start_node(spec, tmp_path)
     finally:
         signal.signal(signal.SIGINT, previous)
-    codes = stop_nodes([process])
+    started = time.monotonic()
+    codes = stop_nodes([process], timeout_s=30.0)
     assert codes == [0], (tmp_path / "bundle.log").read_text()
+    assert time.monotonic() - started >= SIGINT_REPEAT_S  # the first SIGINT was lost indeed; a repeat stopped it
 
 
 def test_a_process_that_ignores_ctrl_c_is_killed_with_its_stacks_in_its_log(tmp_path):

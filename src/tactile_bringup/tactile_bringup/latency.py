@@ -8,6 +8,9 @@ estimate keeps): for the bundles on /tactile/image_bundle (cameras and synchroni
 its messages; reported are their medians over the windows and the range of the window medians. Exits 1 when a
 window got no estimate or a node failed.
 
+The probe's own subscription to the 64 KB bundles is one more reader for the bundle node; without it, bundles
+would leave that node a little sooner.
+
 The baseline, measured in the same run before the graph starts: one predict() of the fusion node's model, backend,
 precision and thread count in this process (median of 300 calls), i.e. the inference alone. `ratio_to_inference`
 says how much the graph around the network costs.
@@ -20,13 +23,14 @@ import json
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import rclpy
 from rclpy.node import Node
 
-from tactile_bringup.graph import sensor_graph
+from tactile_bringup.graph import NodeSpec, sensor_graph
 from tactile_bringup.processes import ESTIMATE_TOPIC, start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
@@ -35,7 +39,7 @@ from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 BUNDLE_TOPIC = "/tactile/image_bundle"
-#: The fusion node's default intra-op thread count, which the baseline uses too.
+#: The fusion node's intra-op threads here, in the graph and in the baseline.
 FUSION_THREADS = 1
 BASELINE_CALLS = 300
 #: How long the cameras may take to start and the fusion node to take its reference frames.
@@ -60,6 +64,16 @@ class LatencyProbe(Node):
         for values in self.latencies_s.values():
             values.clear()
         return taken
+
+
+def measured_spec(spec: NodeSpec) -> NodeSpec:
+    """The graph's node as measured here: simulated cameras stamp the capture time itself (no stamp jitter, which
+    would move the bundle stamps up to 2 ms after the capture), the fusion node runs the baseline's threads."""
+    if spec.executable == "sim_camera_node":
+        return replace(spec, parameters={**spec.parameters, "stamp_jitter_s": 0.0})
+    if spec.executable == "fusion_node":
+        return replace(spec, parameters={**spec.parameters, "threads": FUSION_THREADS})
+    return spec
 
 
 def spin_for(node: Node, seconds: float) -> None:
@@ -118,21 +132,23 @@ def main(argv: list[str] | None = None) -> int:
     sensor_config = args.sensor or str(default_sensor_path())
     sensor = load_sensor(sensor_config)
     baseline_ms = inference_ms(args.model, args.backend, args.precision)
-    graph = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
-                         precision=args.precision)
+    graph = [measured_spec(spec) for spec in sensor_graph(sensor, sensor_config, "sim", args.scene,
+                                                          model_dir=args.model, backend=args.backend,
+                                                          precision=args.precision)]
     rclpy.init()
     probe = LatencyProbe()
     windows = []
     specs, processes = start_graph(graph, Path(args.log_dir), probe)
     try:
-        if not spin_until_estimate(probe, FIRST_ESTIMATE_TIMEOUT_S):
+        if spin_until_estimate(probe, FIRST_ESTIMATE_TIMEOUT_S):
+            spin_for(probe, args.settle)
+            probe.take()
+            for _ in range(args.windows):
+                spin_for(probe, args.window)
+                windows.append(probe.take())
+        else:
             print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
                   file=sys.stderr)
-        spin_for(probe, args.settle)
-        probe.take()
-        for _ in range(args.windows):
-            spin_for(probe, args.window)
-            windows.append(probe.take())
     except KeyboardInterrupt:
         pass
     finally:
@@ -155,8 +171,8 @@ def main(argv: list[str] | None = None) -> int:
         "exit_codes": {spec.name: code for spec, code in zip(specs, codes, strict=True)},
     }
     print(json.dumps(report))
-    if not all(report["estimates_per_window"]) or any(codes):
-        print(f"tactile-latency: a window without estimates or a node that failed; node logs in {args.log_dir}/",
+    if len(windows) < args.windows or not all(report["estimates_per_window"]) or any(codes):
+        print(f"tactile-latency: a window missing or without estimates, or a node failed; node logs in {args.log_dir}/",
               file=sys.stderr)
         return 1
     return 0

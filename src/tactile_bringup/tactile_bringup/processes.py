@@ -52,36 +52,41 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     """
     cameras = [s for s in specs if s.package == "tactile_camera_driver"]
     others = [s for s in specs if s not in cameras]
-    processes = [start_node(spec, log_dir) for spec in others]
-    if not wait_for_publisher(probe, ESTIMATE_TOPIC, timeout_s):
-        print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
-    processes += [start_node(spec, log_dir) for spec in cameras]
+    processes = []
+    try:
+        processes += [start_node(spec, log_dir) for spec in others]
+        if not wait_for_publisher(probe, ESTIMATE_TOPIC, timeout_s):
+            print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
+        processes += [start_node(spec, log_dir) for spec in cameras]
+    except BaseException:  # Ctrl-C or an error while waiting: leave no node behind
+        stop_nodes(processes)
+        raise
     return others + cameras, processes
 
 
 def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
     """Interrupt every node (SIGINT, as Ctrl-C), kill those that do not exit in time; their exit codes.
 
-    SIGINT is repeated every `SIGINT_REPEAT_S` until a node exits: a node started with SIGINT ignored (what a
+    SIGINT is repeated every `SIGINT_REPEAT_S` to the nodes still running: a node started with SIGINT ignored (what a
     background job of a non-interactive shell inherits) loses a SIGINT that arrives while it imports, before
     `rclpy.init()` installs rclpy's handler, and would otherwise spin until killed. A node that is killed first
     gets SIGUSR1, which makes it print its threads' stacks into its log (tactile_conversions.node_main), so that
     the log says where it was stuck.
     """
     deadline = time.monotonic() + timeout_s
-    for process in processes:
-        if process.poll() is None:
+    running = [p for p in processes if p.poll() is None]
+    while running and time.monotonic() < deadline:
+        for process in running:
             process.send_signal(signal.SIGINT)
-    for process in processes:
-        while process.poll() is None and time.monotonic() < deadline:
-            try:
-                process.wait(timeout=min(SIGINT_REPEAT_S, max(deadline - time.monotonic(), 0.0)))
-            except subprocess.TimeoutExpired:
-                if time.monotonic() < deadline:
-                    process.send_signal(signal.SIGINT)
-        if process.poll() is None:
-            process.send_signal(signal.SIGUSR1)
-            time.sleep(STACK_DUMP_S)
-            process.kill()
-            process.wait()
+        repeat_at = min(time.monotonic() + SIGINT_REPEAT_S, deadline)
+        while running and time.monotonic() < repeat_at:
+            time.sleep(0.02)
+            running = [p for p in running if p.poll() is None]
+    for process in running:
+        process.send_signal(signal.SIGUSR1)
+    if running:
+        time.sleep(STACK_DUMP_S)
+    for process in running:
+        process.kill()
+        process.wait()
     return [process.returncode for process in processes]

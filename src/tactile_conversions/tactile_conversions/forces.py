@@ -42,12 +42,13 @@ def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:
 
 
 def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
-                  newtons_per_metre: float = 0.1, min_force_n: float = 1e-3) -> MarkerArray:
+                  newtons_per_metre: float = 0.1, min_force_n: float = 1e-3, lifetime_s: float = 1.0) -> MarkerArray:
     """One arrow per loaded bin, from the surface into the gel along the applied force, coloured by |F|.
 
     Arrows are scaled so that `newtons_per_metre` newtons draw one metre (0.1 N -> 1 m would be huge: the
     default draws 1 mN as 1 cm). Bins below `min_force_n` get no arrow; a DELETEALL marker first clears the
-    arrows of the previous estimate.
+    arrows of the previous estimate. RViz drops an arrow `lifetime_s` after its estimate, so that a stopped
+    node leaves no stale picture: it must outlast the time between two marker arrays.
     """
     forces = np.asarray(bin_forces_n, dtype=np.float64)
     header = Header(stamp=stamp, frame_id=frame_id)
@@ -55,6 +56,7 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
     magnitudes = np.linalg.norm(forces, axis=-1)
     peak = max(float(magnitudes.max()), min_force_n)
     centres = grid.bin_centers_m()
+    lifetime = Duration(sec=int(lifetime_s), nanosec=int(round((lifetime_s % 1.0) * 1e9)) % 1_000_000_000)
     for row, col in zip(*np.nonzero(magnitudes >= min_force_n), strict=True):
         fx, fy, fz = forces[row, col]
         x, y = centres[row, col]
@@ -67,5 +69,5 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
                               action=Marker.ADD, points=[tail, head],
                               scale=Vector3(x=0.2 * grid.bin_width_m, y=0.4 * grid.bin_width_m, z=0.0),
                               color=ColorRGBA(r=float(level), g=float(0.2 * (1 - level)), b=float(1 - level), a=1.0),
-                              lifetime=Duration(sec=1)))
+                              lifetime=lifetime))
     return MarkerArray(markers=markers)

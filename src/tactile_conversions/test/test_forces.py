@@ -62,3 +62,8 @@ def test_markers_point_into_the_gel_for_a_press(grid):
 def test_no_arrows_without_load(grid):
     empty = np.zeros((grid.rows, grid.cols, 3))
     assert len(force_markers(empty, grid, Time(), "tactile_surface").markers) == 1
+
+
+def test_arrows_live_as_long_as_asked(grid):
+    arrows = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", lifetime_s=2.5).markers[1:]
+    assert all((a.lifetime.sec, a.lifetime.nanosec) == (2, 500_000_000) for a in arrows)

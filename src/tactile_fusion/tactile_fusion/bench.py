@@ -80,6 +80,7 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
     for entry in results.values():
         entry["ratio_to_baseline"] = entry["ms_per_frame"] / results[BASELINE]["ms_per_frame"]
     return {"backends": results, "baseline": BASELINE, "cameras": len(baseline.camera_ids),
-            "image_size": baseline.image_size, "batch": 1, "runs": runs, "rounds": ROUNDS, "threads": threads,
+            "image_size": baseline.image_size, "batch": 1, "runs": runs, "rounds": -(-runs // block),
+            "threads": threads,
             "statistic": "median over runs of one predict() call, input checks included",
             "accuracy_source": f"{METRICS_JSON} (test split, written by tactile-fusion train)" if accuracy else None}

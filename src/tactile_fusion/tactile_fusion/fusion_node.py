@@ -9,9 +9,9 @@ Reference frames: the model sees each camera's difference to a frame taken at re
 bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them.
 
 RViz markers (one arrow per loaded bin) cost far more than an estimate: about 26 ms to build and 12 ms to
-serialise for a full surface, against about 1 ms of inference. Published with every estimate at the sensor's 40 Hz
-they made the node fall behind its bundles (estimates 170-190 ms old, `tactile-latency`); they are published at
-most `markers_rate_hz` times a second, which is what a display needs.
+serialise with every bin loaded, against about 1 ms of inference. Published with every estimate at the sensor's
+40 Hz they made the node fall behind its bundles (estimates up to 184 ms old, `tactile-latency`); they are
+published at most `markers_rate_hz` times a second, which is what a display needs.
 
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
 (which shows the model its reference frame there: "no contact"), and the estimate lists it in
@@ -82,8 +82,9 @@ class FusionNode(Node):
         if self.load.add(time.perf_counter() - started):
             self.get_logger().warning(
                 f"falling behind the cameras: a bundle takes {1e3 * self.load.mean_s:.1f} ms on average, they come "
-                f"every {1e3 * self.load.frame_period_s:.1f} ms, so estimates arrive later and later; use the "
-                "onnxruntime backend, a lower markers_rate_hz or publish_markers false", throttle_duration_sec=10.0)
+                f"every {1e3 * self.load.frame_period_s:.1f} ms, so estimates arrive later and later; a faster backend "
+                "or precision (tactile-fusion bench), a lower markers_rate_hz or publish_markers false help",
+                throttle_duration_sec=10.0)
 
     def estimate(self, bundle: ImageBundle) -> None:
         """Capture the reference or publish the estimate of one bundle."""
@@ -112,7 +113,8 @@ class FusionNode(Node):
         if self.publish_markers and now_s - self.last_markers_s >= self.markers_period_s:
             self.last_markers_s = now_s
             self.markers_pub.publish(force_markers(forces, self.sensor.grid, bundle.header.stamp,
-                                                   self.sensor.frame_id))
+                                                   self.sensor.frame_id,
+                                                   lifetime_s=max(1.0, 2.0 * self.markers_period_s)))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -51,7 +51,7 @@ class ProcessingLoad:
 
     A node slower than its input drops nothing at first: the bundles wait in its subscription queue and every
     estimate is older than the one before, until the queue is full (the torch fp16 backend at 22 ms per frame
-    behind 40 Hz cameras: estimates 150-270 ms old). Nothing in the estimates shows that, hence this check.
+    behind 40 Hz cameras: estimates 60-270 ms old). Nothing in the estimates shows that, hence this check.
     The average is exponential with weight `smoothing` for the newest duration, so that one slow bundle (the
     first inference, a marker array) does not count as falling behind.
     """
