@@ -9,10 +9,15 @@ from rclpy.node import Node
 
 
 @pytest.fixture
-def ros_probe(monkeypatch):
-    """A node in a DDS domain of this test run's own (child processes inherit it), discovery on loopback only."""
+def ros_domain(monkeypatch):
+    """A DDS domain of this test run's own, discovery on loopback only; child processes inherit it."""
     monkeypatch.setenv("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+@pytest.fixture
+def ros_probe(ros_domain):
+    """A node in the test run's own DDS domain (`ros_domain`)."""
     rclpy.init()
     node = Node("system_test_probe")
     yield node

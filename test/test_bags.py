@@ -6,12 +6,10 @@ bundle node, the `tactile-bag` console script, and this process as the subscribe
 
 import json
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
 import torch
 from ament_index_python.packages import get_package_prefix
 from rclpy.qos import qos_profile_sensor_data
@@ -20,7 +18,7 @@ from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagReader
 from tactile_bringup.graph import NodeSpec
-from tactile_bringup.processes import start_node, stop_nodes
+from tactile_bringup.processes import spin_until, start_node, stop_nodes
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.artifacts import save_model
 from tactile_fusion.model import ModelConfig
@@ -33,12 +31,6 @@ RECORD_S = 4.0
 def tactile_bag(*args: str, timeout_s: float = 30.0) -> subprocess.CompletedProcess:
     executable = Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"
     return subprocess.run([str(executable), *args], capture_output=True, text=True, timeout=timeout_s)
-
-
-def spin_until(node, condition, timeout_s: float) -> None:
-    end = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
 
 
 def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, tmp_path):

@@ -1,7 +1,6 @@
 """System test of `tactile-latency`: the whole simulated graph as real processes, measured from outside."""
 
 import json
-import os
 import subprocess
 
 import pytest
@@ -9,10 +8,9 @@ import pytest
 pytestmark = pytest.mark.system
 
 
-def test_latency_reports_each_window_against_the_inference_baseline(tmp_path):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + (os.getpid() + 2) % 80), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+def test_latency_reports_each_window_against_the_inference_baseline(ros_domain, tmp_path):
     run = subprocess.run(["tactile-latency", "--windows", "2", "--window", "2", "--settle", "1", "--log-dir",
-                          str(tmp_path)], env=env, capture_output=True, text=True, timeout=300)
+                          str(tmp_path)], capture_output=True, text=True, timeout=300)
     logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
     assert run.returncode == 0, run.stderr + logs
     report = json.loads(run.stdout.strip().splitlines()[-1])

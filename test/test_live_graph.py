@@ -1,7 +1,6 @@
 """System tests of the live graph: real node processes talking over Fast DDS on loopback."""
 
 import json
-import os
 import subprocess
 from pathlib import Path
 
@@ -56,10 +55,9 @@ def test_a_dropped_camera_degrades_bundles_and_they_recover(collect, tmp_path):
     assert "no images from ['cam1']" in logs
 
 
-def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(tmp_path):
+def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(ros_domain, tmp_path):
     """`make demo`'s command: simulated cameras -> bundles -> fusion node, watched against the ground truth."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + (os.getpid() + 1) % 80), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    demo = subprocess.run(["tactile-demo", "--duration", "15", "--json", "--log-dir", str(tmp_path)], env=env,
+    demo = subprocess.run(["tactile-demo", "--duration", "15", "--json", "--log-dir", str(tmp_path)],
                           capture_output=True, text=True, timeout=120)
     logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
     assert demo.returncode == 0, demo.stderr + logs

@@ -1,7 +1,6 @@
 """start_node / stop_nodes on real processes: a node that is asked for its stacks, a node that inherited Ctrl-C
 ignored, a process that will not stop."""
 
-import os
 import signal
 import subprocess
 import sys
@@ -43,11 +42,9 @@ def test_a_node_prints_its_stacks_on_sigusr1_and_keeps_running(ros_probe, tmp_pa
     assert codes == [0], (tmp_path / "bundle.log").read_text()
 
 
-def test_a_node_that_inherited_ctrl_c_ignored_and_missed_the_first_one_still_stops(monkeypatch, tmp_path):
+def test_a_node_that_inherited_ctrl_c_ignored_and_missed_the_first_one_still_stops(ros_domain, tmp_path):
     # What a background job of a non-interactive shell inherits; a SIGINT then, during the node's imports (before
     # rclpy.init), is lost. stop_nodes interrupts at once, well within the imports, so only a repeat can stop it.
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     spec = NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": str(default_sensor_path())})
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:

@@ -22,7 +22,6 @@ import argparse
 import json
 import statistics
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -31,7 +30,7 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import ESTIMATE_TOPIC, start_graph, stop_nodes
+from tactile_bringup.processes import ESTIMATE_TOPIC, spin_until, start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.bench import call_times_s, synthetic_frame
@@ -74,20 +73,6 @@ def measured_spec(spec: NodeSpec) -> NodeSpec:
     if spec.executable == "fusion_node":
         return replace(spec, parameters={**spec.parameters, "threads": FUSION_THREADS})
     return spec
-
-
-def spin_for(node: Node, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
-
-
-def spin_until_estimate(probe: LatencyProbe, timeout_s: float) -> bool:
-    """True once `probe` has received an estimate (the fusion node has its reference and publishes)."""
-    end = time.monotonic() + timeout_s
-    while not probe.latencies_s[ESTIMATE_TOPIC] and time.monotonic() < end:
-        rclpy.spin_once(probe, timeout_sec=0.05)
-    return bool(probe.latencies_s[ESTIMATE_TOPIC])
 
 
 def summarise(windows: list[dict[str, list[float]]], topic: str) -> dict:
@@ -140,11 +125,11 @@ def main(argv: list[str] | None = None) -> int:
     windows = []
     specs, processes = start_graph(graph, Path(args.log_dir), probe)
     try:
-        if spin_until_estimate(probe, FIRST_ESTIMATE_TIMEOUT_S):
-            spin_for(probe, args.settle)
+        if spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC], FIRST_ESTIMATE_TIMEOUT_S):
+            spin_until(probe, lambda: False, args.settle)
             probe.take()
             for _ in range(args.windows):
-                spin_for(probe, args.window)
+                spin_until(probe, lambda: False, args.window)
                 windows.append(probe.take())
         else:
             print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",

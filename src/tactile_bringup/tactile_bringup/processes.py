@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import rclpy
@@ -32,14 +33,19 @@ def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None)
                                 env=env)
 
 
+def spin_until(node: Node, condition: Callable[[], object], timeout_s: float) -> bool:
+    """Spin `node` until `condition()` is true (then True) or for `timeout_s` (then False)."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() >= deadline:
+            return False
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return True
+
+
 def wait_for_publisher(node: Node, topic: str, timeout_s: float) -> bool:
     """True once some node publishes `topic` (discovered over DDS), False after `timeout_s`."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if node.count_publishers(topic):
-            return True
-        rclpy.spin_once(node, timeout_sec=0.1)
-    return False
+    return spin_until(node, lambda: node.count_publishers(topic), timeout_s)
 
 
 def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
