@@ -1,6 +1,8 @@
 """Fixtures of the system tests (real processes over Fast DDS on loopback)."""
 
 import os
+import signal
+import subprocess
 import time
 
 import pytest
@@ -13,6 +15,27 @@ def ros_domain(monkeypatch):
     """A DDS domain of this test run's own, discovery on loopback only; child processes inherit it."""
     monkeypatch.setenv("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+@pytest.fixture
+def run_graph_tool():
+    """run_graph_tool(args, timeout_s): run a command-line tool that starts node processes, like subprocess.run.
+
+    The tool runs in a process group of its own. If the test ends before the tool does (a timeout, Ctrl-C), the
+    whole group is killed: killing only the tool would leave its nodes running, and publishing, after the test.
+    """
+    def run(args: list[str], timeout_s: float) -> subprocess.CompletedProcess:
+        process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   start_new_session=True)
+        try:
+            stdout, stderr = process.communicate(timeout=timeout_s)
+        except BaseException:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+            raise
+        return subprocess.CompletedProcess(args, process.returncode, stdout, stderr)
+
+    return run
 
 
 @pytest.fixture

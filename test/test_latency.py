@@ -8,9 +8,10 @@ import pytest
 pytestmark = pytest.mark.system
 
 
-def test_latency_reports_each_window_against_the_inference_baseline(ros_domain, tmp_path):
-    run = subprocess.run(["tactile-latency", "--windows", "2", "--window", "2", "--settle", "1", "--log-dir",
-                          str(tmp_path)], capture_output=True, text=True, timeout=300)
+def test_latency_reports_each_window_against_the_inference_baseline(ros_domain, run_graph_tool, tmp_path):
+    # Markers with every estimate (40 Hz cameras): the graph must still deliver every window.
+    run = run_graph_tool(["tactile-latency", "--windows", "2", "--window", "2", "--settle", "1", "--markers-rate",
+                          "40", "--log-dir", str(tmp_path)], 300)
     logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
     assert run.returncode == 0, run.stderr + logs
     report = json.loads(run.stdout.strip().splitlines()[-1])
@@ -19,7 +20,7 @@ def test_latency_reports_each_window_against_the_inference_baseline(ros_domain, 
     estimate, bundle = report["estimate_latency"]["median_ms"], report["bundle_latency"]["median_ms"]
     # An estimate carries its bundle's capture stamp and leaves after the bundle arrived and went through the model.
     assert 0 < bundle < estimate <= report["estimate_latency"]["p90_ms"]
-    assert report["inference_ms"] > 0
+    assert report["inference_ms"] > 0 and report["markers_rate_hz"] == 40
     assert report["ratio_to_inference"] == pytest.approx(estimate / report["inference_ms"])
 
 
@@ -27,3 +28,6 @@ def test_latency_rejects_a_bad_window(tmp_path):
     run = subprocess.run(["tactile-latency", "--window", "0", "--log-dir", str(tmp_path)], capture_output=True,
                          text=True, timeout=60)
     assert run.returncode == 2 and "--window > 0" in run.stderr
+    run = subprocess.run(["tactile-latency", "--markers-rate", "0", "--log-dir", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "--markers-rate > 0" in run.stderr

@@ -1,6 +1,7 @@
 """start_node / stop_nodes on real processes: a node that is asked for its stacks, a node that inherited Ctrl-C
 ignored, a process that will not stop."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -69,3 +70,31 @@ def test_a_process_that_ignores_ctrl_c_is_killed_with_its_stacks_in_its_log(tmp_
     assert time.monotonic() - started < 5.0
     log = log_path.read_text()
     assert STACK_HEADER in log and "in <module>" in log, log
+
+
+def running(pid: int) -> bool:
+    """Whether process `pid` exists and is not a zombie (a container's init may never reap it)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except FileNotFoundError:
+        return False
+
+
+def test_a_graph_tool_that_overruns_its_test_takes_its_nodes_with_it(run_graph_tool, tmp_path):
+    """The tests' `run_graph_tool` kills the tool's whole process group, not only the tool."""
+    pid_file = tmp_path / "node.pid"
+    tool = ("import subprocess, sys, time\n"
+            "node = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'], "
+            "stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)\n"
+            f"open({str(pid_file)!r}, 'w').write(str(node.pid))\n"
+            "time.sleep(600)\n")
+    with pytest.raises(subprocess.TimeoutExpired):
+        run_graph_tool([sys.executable, "-c", tool], 3)
+    node_pid = int(pid_file.read_text())
+    end = time.monotonic() + 5.0
+    while running(node_pid) and time.monotonic() < end:
+        time.sleep(0.05)
+    if running(node_pid):
+        os.kill(node_pid, signal.SIGKILL)
+        pytest.fail("the tool's node outlived the tool")

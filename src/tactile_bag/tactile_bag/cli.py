@@ -21,7 +21,8 @@ import rclpy
 from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, evaluate_bag
 from tactile_bag.play import play
 from tactile_bag.record import record
-from tactile_bag.topics import GROUND_TRUTH_TOPIC, absolute_topic, default_record_topics, stack_topics
+from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
 from tactile_fusion.metrics import metrics_table
 

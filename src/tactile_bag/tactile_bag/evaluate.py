@@ -27,9 +27,10 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagError, BagReader
-from tactile_bag.topics import BUNDLE_TOPIC, BUNDLE_TYPE, FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
+from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.images import frame_from_images
 from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.artifacts import check_model_fits

@@ -1,27 +1,25 @@
-"""The topics of the tactile graph (docs/nodes.md), their message types, and the QoS to record and replay them."""
+"""The message types of the tactile graph's topics (docs/nodes.md), and the QoS to record and replay them."""
 
 from __future__ import annotations
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
+from tactile_conversions.topics import (
+    BUNDLE_TOPIC,
+    ESTIMATE_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    MARKERS_TOPIC,
+    WRENCH_TOPIC,
+    camera_topic,
+)
 from tactile_description import SensorDescription
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 BUNDLE_TYPE = "tactile_msgs/msg/ImageBundle"
 FORCES_TYPE = "tactile_msgs/msg/ForceDistribution"
 
-BUNDLE_TOPIC = "/tactile/image_bundle"
-ESTIMATE_TOPIC = "/tactile/force_distribution"
-GROUND_TRUTH_TOPIC = "/tactile/ground_truth/force_distribution"
-WRENCH_TOPIC = "/tactile/wrench"
-MARKERS_TOPIC = "/tactile/force_markers"
-
 #: Queue depth of reliable subscriptions and publishers: a second of the sensor's frames and then some.
 RELIABLE_DEPTH = 100
-
-
-def camera_topic(camera_id: str) -> str:
-    return f"/tactile/{camera_id}/image"
 
 
 def stack_topics(sensor: SensorDescription) -> dict[str, str]:

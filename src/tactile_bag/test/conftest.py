@@ -13,10 +13,11 @@ import torch
 from rclpy.serialization import serialize_message
 
 from tactile_bag.bagfile import BagWriter
-from tactile_bag.topics import BUNDLE_TOPIC, BUNDLE_TYPE, FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
+from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
+from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import save_model
 from tactile_fusion.model import ModelConfig

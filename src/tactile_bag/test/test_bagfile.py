@@ -11,7 +11,8 @@ from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagError, BagReader, BagWriter
 from tactile_bag.message_types import MessageTypeError, bag_typestore, message_class
-from tactile_bag.topics import FORCES_TYPE, GROUND_TRUTH_TOPIC, IMAGE_TYPE, camera_topic
+from tactile_bag.topics import FORCES_TYPE, IMAGE_TYPE
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_msgs.msg import ForceDistribution
 
 

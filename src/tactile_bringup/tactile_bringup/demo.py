@@ -22,8 +22,9 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import ESTIMATE_TOPIC, start_graph, stop_nodes
+from tactile_bringup.processes import start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
@@ -43,7 +44,7 @@ class Monitor(Node):
         self.missing_cameras: set[str] = set()
         self.last: tuple[float, float] | None = None  # (estimated Fz, true Fz)
         self.create_subscription(ForceDistribution, ESTIMATE_TOPIC, self.on_estimate, 50)
-        self.create_subscription(ForceDistribution, "/tactile/ground_truth/force_distribution", self.on_truth, 50)
+        self.create_subscription(ForceDistribution, GROUND_TRUTH_TOPIC, self.on_truth, 50)
 
     def forces(self, msg: ForceDistribution) -> np.ndarray:
         return np.asarray(msg.forces_n, dtype=np.float64).reshape(msg.rows, msg.cols, 3)

@@ -30,14 +30,15 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import ESTIMATE_TOPIC, spin_until, start_graph, stop_nodes
+from tactile_bringup.processes import spin_until, start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.bench import call_times_s, synthetic_frame
+from tactile_fusion.fusion_node import MARKERS_RATE_HZ
 from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
-BUNDLE_TOPIC = "/tactile/image_bundle"
 #: The fusion node's intra-op threads here, in the graph and in the baseline.
 FUSION_THREADS = 1
 BASELINE_CALLS = 300
@@ -65,13 +66,15 @@ class LatencyProbe(Node):
         return taken
 
 
-def measured_spec(spec: NodeSpec) -> NodeSpec:
+def measured_spec(spec: NodeSpec, markers_rate_hz: float) -> NodeSpec:
     """The graph's node as measured here: simulated cameras stamp the capture time itself (no stamp jitter, which
-    would move the bundle stamps up to 2 ms after the capture), the fusion node runs the baseline's threads."""
+    would move the bundle stamps up to 2 ms after the capture), the fusion node runs the baseline's threads and
+    publishes RViz markers `markers_rate_hz` times a second."""
     if spec.executable == "sim_camera_node":
         return replace(spec, parameters={**spec.parameters, "stamp_jitter_s": 0.0})
     if spec.executable == "fusion_node":
-        return replace(spec, parameters={**spec.parameters, "threads": FUSION_THREADS})
+        return replace(spec, parameters={**spec.parameters, "threads": FUSION_THREADS,
+                                         "markers_rate_hz": markers_rate_hz})
     return spec
 
 
@@ -107,17 +110,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
     parser.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
     parser.add_argument("--precision", choices=["fp32", "int8", "fp16"], default="fp32")
+    parser.add_argument("--markers-rate", type=float, default=MARKERS_RATE_HZ,
+                        help="RViz marker arrays per second from the fusion node (default %(default)s; the cameras' "
+                             "frame rate or more: one with every estimate)")
     parser.add_argument("--log-dir", default="log/latency", help="where the nodes' output goes (default %(default)s)")
     args = parser.parse_args(argv)
-    if args.windows < 1 or args.window <= 0 or args.settle < 0:
-        parser.error("--windows must be >= 1, --window > 0 and --settle >= 0")
+    if args.windows < 1 or args.window <= 0 or args.settle < 0 or not args.markers_rate > 0:
+        parser.error("--windows must be >= 1, --window > 0, --settle >= 0 and --markers-rate > 0")
     if args.precision not in BACKENDS[args.backend]:
         parser.error(f"backend {args.backend} supports precisions {list(BACKENDS[args.backend])}")
 
     sensor_config = args.sensor or str(default_sensor_path())
     sensor = load_sensor(sensor_config)
     baseline_ms = inference_ms(args.model, args.backend, args.precision)
-    graph = [measured_spec(spec) for spec in sensor_graph(sensor, sensor_config, "sim", args.scene,
+    graph = [measured_spec(spec, args.markers_rate) for spec in sensor_graph(sensor, sensor_config, "sim", args.scene,
                                                           model_dir=args.model, backend=args.backend,
                                                           precision=args.precision)]
     rclpy.init()
@@ -150,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         "inference_ms": baseline_ms,
         "ratio_to_inference": estimate["median_ms"] / baseline_ms if estimate["median_ms"] is not None else None,
         "backend": args.backend, "precision": args.precision, "threads": FUSION_THREADS,
-        "window_s": args.window, "scene": args.scene,
+        "markers_rate_hz": args.markers_rate, "window_s": args.window, "scene": args.scene,
         "statistic": "per window the median (and 90th percentile) over its messages of arrival here minus capture "
                      "stamp; then the median over the windows",
         "exit_codes": {spec.name: code for spec, code in zip(specs, codes, strict=True)},

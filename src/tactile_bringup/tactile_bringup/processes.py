@@ -14,9 +14,9 @@ from ament_index_python.packages import get_package_prefix
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec
+from tactile_conversions.topics import ESTIMATE_TOPIC
 
 #: The topic whose publisher shows that the fusion node is up.
-ESTIMATE_TOPIC = "/tactile/force_distribution"
 
 #: Time a stuck node gets to write its stacks before it is killed.
 STACK_DUMP_S = 1.0

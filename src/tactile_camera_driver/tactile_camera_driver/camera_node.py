@@ -19,6 +19,7 @@ from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
+from tactile_conversions.topics import camera_topic
 from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
 
@@ -44,7 +45,7 @@ class CameraNode(Node):
         rate_hz = float(self.declare_parameter("rate_hz", sensor.frame_rate_hz).value)
         if rate_hz <= 0 or self.reopen_period_s <= 0:
             raise ValueError(f"rate_hz and reopen_period_s must be > 0, got {rate_hz}, {self.reopen_period_s}")
-        self.publisher = self.create_publisher(Image, f"/tactile/{self.camera_id}/image", qos_profile_sensor_data)
+        self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
         self.capture: cv2.VideoCapture | None = None
         self.next_open_s = 0.0
         self.frames_published = 0

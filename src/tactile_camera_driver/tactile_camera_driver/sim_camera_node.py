@@ -18,6 +18,7 @@ from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import seconds_to_time
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import load_sensor
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import Simulator, load_scene
@@ -38,9 +39,9 @@ class SimCameraNode(Node):
         self.scene = load_scene(scene_name, self.sensor)
         self.frames = self.simulator.stream(self.scene)
         self.rng = np.random.default_rng(0)
-        self.image_pubs = {c: self.create_publisher(Image, f"/tactile/{c}/image", qos_profile_sensor_data)
+        self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)
                            for c in self.sensor.camera_ids}
-        self.truth_pub = self.create_publisher(ForceDistribution, "/tactile/ground_truth/force_distribution", 10)
+        self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
         self.create_timer(1.0 / rate_hz, self.publish_frame)
         self.get_logger().info(f"simulating scene {scene_name!r} ({len(self.scene)} frames) at {rate_hz:.1f} Hz "
                                f"for cameras {list(self.sensor.camera_ids)}")

@@ -41,33 +41,44 @@ def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:
     return WrenchStamped(header=distribution.header, wrench=Wrench(force=distribution.total_force_n))
 
 
-def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
-                  newtons_per_metre: float = 0.1, min_force_n: float = 1e-3, lifetime_s: float = 1.0) -> MarkerArray:
-    """One arrow per loaded bin, from the surface into the gel along the applied force, coloured by |F|.
+#: Colour levels of the force lines, blue (weak) to red (the strongest bin): few enough to share the colour objects.
+COLOUR_LEVELS = 64
+_PALETTE = tuple(ColorRGBA(r=level, g=0.2 * (1.0 - level), b=1.0 - level, a=1.0)
+                 for level in np.linspace(0.0, 1.0, COLOUR_LEVELS).tolist())
 
-    Arrows are scaled so that `newtons_per_metre` newtons draw one metre (0.1 N -> 1 m would be huge: the
-    default draws 1 mN as 1 cm). Bins below `min_force_n` get no arrow; a DELETEALL marker first clears the
-    arrows of the previous estimate. RViz drops an arrow `lifetime_s` after its estimate, so that a stopped
-    node leaves no stale picture: it must outlast the time between two marker arrays.
+
+def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
+                  newtons_per_metre: float = 5.0, min_force_n: float = 1e-3, lifetime_s: float = 1.0) -> MarkerArray:
+    """One LINE_LIST marker: a line per loaded bin, from the surface into the gel along the applied force.
+
+    Lines are scaled so that `newtons_per_metre` newtons draw one metre (the default draws 50 mN, a firmly
+    loaded bin, as 1 cm under the 49 x 51 mm surface) and coloured by |F| relative to the strongest bin. Bins
+    below `min_force_n` get no line; without any, the marker is deleted. RViz drops the lines `lifetime_s` after
+    their estimate, so that a stopped node leaves no stale picture: it must outlast the time between two markers.
+
+    One marker for all bins rather than an arrow marker per bin: building and serialising 650 arrows in Python
+    took 26 + 14 ms with every bin loaded, more than a 40 Hz frame (docs/nodes.md has the figures).
     """
     forces = np.asarray(bin_forces_n, dtype=np.float64)
-    header = Header(stamp=stamp, frame_id=frame_id)
-    markers = [Marker(header=header, ns="bin_forces", action=Marker.DELETEALL)]
+    if not np.isfinite(forces).all():
+        raise FloatingPointError("refusing to draw non-finite bin forces")
     magnitudes = np.linalg.norm(forces, axis=-1)
-    peak = max(float(magnitudes.max()), min_force_n)
-    centres = grid.bin_centers_m()
-    lifetime = Duration(sec=int(lifetime_s), nanosec=int(round((lifetime_s % 1.0) * 1e9)) % 1_000_000_000)
-    for row, col in zip(*np.nonzero(magnitudes >= min_force_n), strict=True):
-        fx, fy, fz = forces[row, col]
-        x, y = centres[row, col]
-        # The applied load points into the gel (-z) for fz > 0 (compression), along +x/+y for fx/fy.
-        tail = Point(x=float(x), y=float(y), z=0.0)
-        head = Point(x=float(x + fx / newtons_per_metre), y=float(y + fy / newtons_per_metre),
-                     z=float(-fz / newtons_per_metre))
-        level = magnitudes[row, col] / peak
-        markers.append(Marker(header=header, ns="bin_forces", id=int(row * grid.cols + col), type=Marker.ARROW,
-                              action=Marker.ADD, points=[tail, head],
-                              scale=Vector3(x=0.2 * grid.bin_width_m, y=0.4 * grid.bin_width_m, z=0.0),
-                              color=ColorRGBA(r=float(level), g=float(0.2 * (1 - level)), b=float(1 - level), a=1.0),
-                              lifetime=lifetime))
-    return MarkerArray(markers=markers)
+    loaded = magnitudes >= min_force_n
+    marker = Marker(header=Header(stamp=stamp, frame_id=frame_id), ns="bin_forces", id=0, type=Marker.LINE_LIST,
+                    action=Marker.ADD if loaded.any() else Marker.DELETE,
+                    scale=Vector3(x=0.2 * grid.bin_width_m),
+                    lifetime=Duration(sec=int(lifetime_s),
+                                      nanosec=int(round((lifetime_s % 1.0) * 1e9)) % 1_000_000_000))
+    if marker.action == Marker.DELETE:
+        return MarkerArray(markers=[marker])
+    centres = grid.bin_centers_m()[loaded]
+    # The applied load points into the gel (-z) for fz > 0 (compression), along +x/+y for fx/fy.
+    heads = np.column_stack([centres + forces[loaded, :2] / newtons_per_metre,
+                             -forces[loaded, 2] / newtons_per_metre])
+    tails = np.column_stack([centres, np.zeros(len(centres))])
+    ends = np.stack([tails, heads], axis=1).reshape(-1, 3).tolist()
+    marker.points = [Point(x=x, y=y, z=z) for x, y, z in ends]
+    peak = max(float(magnitudes.max()), np.finfo(np.float64).tiny)
+    levels = np.rint(magnitudes[loaded] / peak * (COLOUR_LEVELS - 1)).astype(int).tolist()
+    marker.colors = [_PALETTE[level] for level in levels for _ in range(2)]
+    return MarkerArray(markers=[marker])

@@ -48,22 +48,41 @@ def test_non_finite_or_misshapen_forces_are_never_published(grid):
         force_distribution_msg(np.zeros((3, 3, 3)), grid, Time(), "f", [], [])
 
 
-def test_markers_point_into_the_gel_for_a_press(grid):
+def test_markers_are_one_line_per_loaded_bin_into_the_gel(grid):
     markers = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface").markers
-    assert markers[0].action == Marker.DELETEALL
-    arrows = markers[1:]
-    assert len(arrows) == 2
-    strongest = next(m for m in arrows if m.id == 3 * grid.cols + 7)
-    tail, head = strongest.points
-    assert head.z < tail.z == 0.0
-    assert strongest.color.r == pytest.approx(1.0)
+    assert len(markers) == 1
+    lines = markers[0]
+    assert (lines.type, lines.action) == (Marker.LINE_LIST, Marker.ADD)
+    assert len(lines.points) == len(lines.colors) == 4
+    centre = grid.bin_centers_m()[3, 7]
+    strongest = next(i for i in (0, 2) if lines.points[i].x == pytest.approx(centre[0])
+                     and lines.points[i].y == pytest.approx(centre[1]))
+    tail, head = lines.points[strongest:strongest + 2]
+    assert head.z == pytest.approx(-0.3 / 5.0) and tail.z == 0.0
+    assert (head.x - tail.x, head.y - tail.y) == pytest.approx((0.01 / 5.0, -0.02 / 5.0))
+    assert lines.colors[strongest].r == pytest.approx(1.0) and lines.colors[strongest].b == pytest.approx(0.0)
+    assert lines.colors[2 - strongest].r < 0.2
 
 
-def test_no_arrows_without_load(grid):
+def test_every_bin_loaded_gives_every_line(grid):
+    forces = np.full((grid.rows, grid.cols, 3), 0.01)
+    lines = force_markers(forces, grid, Time(), "tactile_surface").markers[0]
+    assert len(lines.points) == len(lines.colors) == 2 * grid.rows * grid.cols
+
+
+def test_no_load_deletes_the_lines(grid):
     empty = np.zeros((grid.rows, grid.cols, 3))
-    assert len(force_markers(empty, grid, Time(), "tactile_surface").markers) == 1
+    markers = force_markers(empty, grid, Time(), "tactile_surface").markers
+    assert len(markers) == 1 and markers[0].action == Marker.DELETE and not markers[0].points
 
 
-def test_arrows_live_as_long_as_asked(grid):
-    arrows = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", lifetime_s=2.5).markers[1:]
-    assert all((a.lifetime.sec, a.lifetime.nanosec) == (2, 500_000_000) for a in arrows)
+def test_lines_live_as_long_as_asked(grid):
+    lines = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", lifetime_s=2.5).markers[0]
+    assert (lines.lifetime.sec, lines.lifetime.nanosec) == (2, 500_000_000)
+
+
+def test_non_finite_forces_are_never_drawn(grid):
+    forces = loaded_bins(grid)
+    forces[5, 5, 2] = np.inf
+    with pytest.raises(FloatingPointError):
+        force_markers(forces, grid, Time(), "tactile_surface")

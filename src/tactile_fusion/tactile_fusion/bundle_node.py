@@ -17,6 +17,7 @@ from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
+from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_description import load_sensor
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, camera_sync_settings
 from tactile_msgs.msg import ImageBundle
@@ -35,12 +36,12 @@ class BundleNode(Node):
         if self.max_spread_s <= 0 or self.queue_size < 1 or self.min_period_s < 0 or self.camera_timeout_s <= 0:
             raise ValueError("tactile_bundle: max_spread_s and camera_timeout_s must be > 0, queue_size >= 1, "
                              "min_period_s >= 0")
-        self.publisher = self.create_publisher(ImageBundle, "/tactile/image_bundle", 10)
+        self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
         self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
         self.live_cameras: tuple[str, ...] = ()
         self.sync: ApproximateTimeSync[Image] | None = None
         for camera_id in self.sensor.camera_ids:
-            self.create_subscription(Image, f"/tactile/{camera_id}/image",
+            self.create_subscription(Image, camera_topic(camera_id),
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
         self.create_timer(self.camera_timeout_s / 2, self.check_cameras)
         self.get_logger().info(f"bundling cameras {list(self.sensor.camera_ids)} "

@@ -8,10 +8,11 @@ Reference frames: the model sees each camera's difference to a frame taken at re
 `~/capture_reference` service, std_srvs/Trigger) the node averages the next `reference_bundles` complete
 bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them.
 
-RViz markers (one arrow per loaded bin) cost far more than an estimate: about 26 ms to build and 12 ms to
-serialise with every bin loaded, against about 1 ms of inference. Published with every estimate at the sensor's
-40 Hz they made the node fall behind its bundles (estimates up to 184 ms old, `tactile-latency`); they are
-published at most `markers_rate_hz` times a second, which is what a display needs.
+RViz markers (one line per loaded bin, `tactile_conversions.forces.force_markers`) cost about 5 ms to build and
+serialise with every bin loaded, several times an inference (about 1 ms). A display needs no more than
+`markers_rate_hz` (default 10) of them a second. The first markers, one arrow marker per bin, took 38 ms: published
+with every estimate at the sensor's 40 Hz they made the node fall behind its bundles (estimates up to 184 ms old,
+`tactile-latency`).
 
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
 (which shows the model its reference frame there: "no contact"), and the estimate lists it in
@@ -30,13 +31,15 @@ from visualization_msgs.msg import MarkerArray
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import frame_from_images
 from tactile_conversions.node_main import run_node
+from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ProcessingLoad, ReferenceFrames
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
-#: Default `markers_rate_hz`: enough for a display, cheap enough for the node (see above).
+#: Default `markers_rate_hz`: enough for a display (see above).
 MARKERS_RATE_HZ = 10.0
 
 
@@ -62,10 +65,10 @@ class FusionNode(Node):
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.reference = ReferenceFrames(self.sensor.n_cameras, self.image_shape, reference_bundles)
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
-        self.forces_pub = self.create_publisher(ForceDistribution, "/tactile/force_distribution", 10)
-        self.wrench_pub = self.create_publisher(WrenchStamped, "/tactile/wrench", 10)
-        self.markers_pub = self.create_publisher(MarkerArray, "/tactile/force_markers", 10)
-        self.create_subscription(ImageBundle, "/tactile/image_bundle", self.on_bundle, 10)
+        self.forces_pub = self.create_publisher(ForceDistribution, ESTIMATE_TOPIC, 10)
+        self.wrench_pub = self.create_publisher(WrenchStamped, WRENCH_TOPIC, 10)
+        self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, 10)
+        self.create_subscription(ImageBundle, BUNDLE_TOPIC, self.on_bundle, 10)
         self.create_service(Trigger, "~/capture_reference", self.on_capture_reference)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
                                f"the reference from the next {reference_bundles} bundles: do not touch")
@@ -79,7 +82,7 @@ class FusionNode(Node):
     def on_bundle(self, bundle: ImageBundle) -> None:
         started = time.perf_counter()
         self.estimate(bundle)
-        if self.load.add(time.perf_counter() - started):
+        if self.load.add(time.perf_counter() - started, time_to_seconds(bundle.header.stamp)):
             self.get_logger().warning(
                 f"falling behind the cameras: a bundle takes {1e3 * self.load.mean_s:.1f} ms on average, they come "
                 f"every {1e3 * self.load.frame_period_s:.1f} ms, so estimates arrive later and later; a faster backend "

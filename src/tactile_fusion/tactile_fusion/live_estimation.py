@@ -52,8 +52,14 @@ class ProcessingLoad:
     A node slower than its input drops nothing at first: the bundles wait in its subscription queue and every
     estimate is older than the one before, until the queue is full (the torch fp16 backend at 22 ms per frame
     behind 40 Hz cameras: estimates 60-270 ms old). Nothing in the estimates shows that, hence this check.
-    The average is exponential with weight `smoothing` for the newest duration, so that one slow bundle (the
-    first inference, a marker array) does not count as falling behind.
+    Both averages are exponential with weight `smoothing` for the newest value, so that one slow bundle (the
+    first inference) or one missing bundle does not count as falling behind.
+
+    The time between bundles comes from their capture stamps, so that cameras running at another rate than the
+    sensor's nominal one (a camera node's `rate_hz`) are judged by their real rate; until two stamps have come,
+    the nominal `frame_period_s` stands in. A stamp that does not advance (a repeated or reordered bundle) is
+    not counted. A bag replayed faster than real time delivers bundles faster than their stamps say: that goes
+    unnoticed.
     """
 
     def __init__(self, frame_period_s: float, smoothing: float = 0.1):
@@ -62,11 +68,26 @@ class ProcessingLoad:
         self.frame_period_s = frame_period_s
         self.smoothing = smoothing
         self.mean_s: float | None = None
+        self._last_stamp_s: float | None = None
+        self._period_measured = False
 
-    def add(self, duration_s: float) -> bool:
-        """Count one bundle's handling time; True while the average exceeds the frame period."""
+    def add(self, duration_s: float, stamp_s: float) -> bool:
+        """Count one bundle's handling time and capture stamp; True while the average time exceeds the average
+        time between bundles."""
+        self._count_stamp(stamp_s)
         if self.mean_s is None:
             self.mean_s = duration_s
         else:
             self.mean_s += self.smoothing * (duration_s - self.mean_s)
         return self.mean_s > self.frame_period_s
+
+    def _count_stamp(self, stamp_s: float) -> None:
+        if self._last_stamp_s is not None and stamp_s <= self._last_stamp_s:
+            return
+        if self._last_stamp_s is not None:
+            interval_s = stamp_s - self._last_stamp_s
+            if self._period_measured:
+                self.frame_period_s += self.smoothing * (interval_s - self.frame_period_s)
+            else:
+                self.frame_period_s, self._period_measured = interval_s, True
+        self._last_stamp_s = stamp_s

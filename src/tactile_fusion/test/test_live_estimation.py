@@ -30,15 +30,44 @@ def test_a_reference_needs_a_frame():
         ReferenceFrames(4, (128, 128), count=0)
 
 
+def every(period_s: float, start_s: float = 100.0):
+    """Capture stamps of bundles `period_s` apart."""
+    stamp_s = start_s
+    while True:
+        yield stamp_s
+        stamp_s += period_s
+
+
 def test_one_slow_bundle_is_not_falling_behind_but_a_slow_stream_is_until_it_recovers():
     load = ProcessingLoad(frame_period_s=0.025, smoothing=0.1)
-    assert not load.add(0.002)
-    assert not load.add(0.040)  # a marker array or the first inference: the average stays below 25 ms
-    behind = [load.add(0.030) for _ in range(40)]  # slower than the cameras, bundle after bundle
+    stamps = every(0.025)
+    assert not load.add(0.002, next(stamps))
+    assert not load.add(0.040, next(stamps))  # the first inference: the average stays below 25 ms
+    behind = [load.add(0.030, next(stamps)) for _ in range(40)]  # slower than the cameras, bundle after bundle
     assert not behind[0] and behind[-1]
-    recovered = [load.add(0.002) for _ in range(40)]
+    recovered = [load.add(0.002, next(stamps)) for _ in range(40)]
     assert recovered[0] and not recovered[-1]
     assert load.mean_s == pytest.approx(0.002, abs=1e-3)
+
+
+def test_the_cameras_real_rate_counts_not_the_nominal_one():
+    # 20 ms per bundle keeps up with the nominal 40 Hz, not with cameras running at 60 Hz.
+    fast = ProcessingLoad(frame_period_s=0.025)
+    stamps = every(1 / 60)
+    assert [fast.add(0.020, next(stamps)) for _ in range(30)][-1]
+    assert fast.frame_period_s == pytest.approx(1 / 60)
+    # 30 ms per bundle is too slow for 40 Hz, not for cameras running at 20 Hz (once two stamps have come).
+    slow = ProcessingLoad(frame_period_s=0.025)
+    stamps = every(0.05)
+    assert slow.add(0.030, next(stamps))
+    assert not any(slow.add(0.030, next(stamps)) for _ in range(30))
+
+
+def test_repeated_or_reordered_stamps_do_not_shrink_the_period():
+    load = ProcessingLoad(frame_period_s=0.025)
+    for stamp_s in (10.0, 10.025, 10.025, 10.0, 10.05):
+        load.add(0.001, stamp_s)
+    assert load.frame_period_s == pytest.approx(0.025)
 
 
 @pytest.mark.parametrize("period, smoothing", [(0.0, 0.1), (-1.0, 0.1), (0.025, 0.0), (0.025, 1.5)])

@@ -1,0 +1,14 @@
+"""The topic names of the tactile graph (docs/nodes.md), in one place for the nodes, the tools and the tests."""
+
+from __future__ import annotations
+
+BUNDLE_TOPIC = "/tactile/image_bundle"
+ESTIMATE_TOPIC = "/tactile/force_distribution"
+GROUND_TRUTH_TOPIC = "/tactile/ground_truth/force_distribution"
+WRENCH_TOPIC = "/tactile/wrench"
+MARKERS_TOPIC = "/tactile/force_markers"
+
+
+def camera_topic(camera_id: str) -> str:
+    """Where the camera `camera_id` publishes its images."""
+    return f"/tactile/{camera_id}/image"
