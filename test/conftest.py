@@ -1,5 +1,6 @@
 """Fixtures of the system tests (real processes over Fast DDS on loopback)."""
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -17,6 +18,11 @@ def ros_domain(monkeypatch):
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 
+def kill_group(pgid: int) -> None:
+    with contextlib.suppress(ProcessLookupError):  # the whole group has exited already
+        os.killpg(pgid, signal.SIGKILL)
+
+
 @pytest.fixture
 def run_graph_tool():
     """run_graph_tool(args, timeout_s): run a command-line tool that starts node processes, like subprocess.run.
@@ -30,9 +36,10 @@ def run_graph_tool():
         try:
             stdout, stderr = process.communicate(timeout=timeout_s)
         except BaseException:
-            os.killpg(process.pid, signal.SIGKILL)
+            kill_group(process.pid)
             process.communicate()
             raise
+        kill_group(process.pid)  # nothing should be left; if something is, it must not outlive the test
         return subprocess.CompletedProcess(args, process.returncode, stdout, stderr)
 
     return run

@@ -85,3 +85,4 @@ def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_pat
     assert codes == [0, 0, 0], logs
     assert first and 1 <= len(markers) <= 3.0 * 4.0 + 1, (len(markers), logs)
     assert all(len(m.markers) == 1 and m.markers[0].type == Marker.LINE_LIST for m in first + markers)
+    assert any(m.markers[0].action == Marker.ADD and m.markers[0].points for m in first + markers)

@@ -16,8 +16,6 @@ from rclpy.node import Node
 from tactile_bringup.graph import NodeSpec
 from tactile_conversions.topics import ESTIMATE_TOPIC
 
-#: The topic whose publisher shows that the fusion node is up.
-
 #: Time a stuck node gets to write its stacks before it is killed.
 STACK_DUMP_S = 1.0
 #: SIGINT is sent again this often while a node has not exited (see `stop_nodes`).
@@ -61,7 +59,7 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     processes = []
     try:
         processes += [start_node(spec, log_dir) for spec in others]
-        if not wait_for_publisher(probe, ESTIMATE_TOPIC, timeout_s):
+        if not wait_for_publisher(probe, ESTIMATE_TOPIC, timeout_s):  # the fusion node is up
             print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
         processes += [start_node(spec, log_dir) for spec in cameras]
     except BaseException:  # Ctrl-C or an error while waiting: leave no node behind

@@ -68,3 +68,14 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     assert "from tactile_bringup.graph import sensor_graph" in source
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
+
+
+def test_latency_measures_the_graph_with_its_markers_rate_and_without_stamp_jitter(sensor):
+    from tactile_bringup.latency import FUSION_THREADS, measured_spec
+
+    specs = {s.executable: measured_spec(s, 40.0)
+             for s in sensor_graph(sensor, str(default_sensor_path()), "sim", scene="demo")}
+    assert specs["fusion_node"].parameters["markers_rate_hz"] == 40.0
+    assert specs["fusion_node"].parameters["threads"] == FUSION_THREADS
+    assert specs["sim_camera_node"].parameters["stamp_jitter_s"] == 0.0
+    assert "markers_rate_hz" not in specs["bundle_node"].parameters

@@ -19,14 +19,21 @@ from tactile_description import BinGrid
 from tactile_msgs.msg import ForceDistribution
 
 
-def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
-                           camera_ids: Sequence[str], missing_camera_ids: Sequence[str]) -> ForceDistribution:
-    """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression)."""
-    forces = np.asarray(bin_forces_n, dtype=np.float32)
+def checked_forces(bin_forces_n: np.ndarray, grid: BinGrid) -> np.ndarray:
+    """The forces as float64 if they have the grid's shape (rows, cols, 3) and are finite; else ValueError or
+    FloatingPointError (nothing non-finite is published or drawn)."""
+    forces = np.asarray(bin_forces_n, dtype=np.float64)
     if forces.shape != (grid.rows, grid.cols, 3):
         raise ValueError(f"bin forces have shape {forces.shape}, the grid needs ({grid.rows}, {grid.cols}, 3)")
     if not np.isfinite(forces).all():
         raise FloatingPointError("refusing to publish non-finite bin forces")
+    return forces
+
+
+def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
+                           camera_ids: Sequence[str], missing_camera_ids: Sequence[str]) -> ForceDistribution:
+    """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression)."""
+    forces = checked_forces(bin_forces_n, grid).astype(np.float32)
     total = forces.astype(np.float64).sum(axis=(0, 1))
     msg = ForceDistribution(header=Header(stamp=stamp, frame_id=frame_id), rows=grid.rows, cols=grid.cols,
                             bin_size_x_m=grid.bin_width_m, bin_size_y_m=grid.bin_length_m,
@@ -41,7 +48,8 @@ def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:
     return WrenchStamped(header=distribution.header, wrench=Wrench(force=distribution.total_force_n))
 
 
-#: Colour levels of the force lines, blue (weak) to red (the strongest bin): few enough to share the colour objects.
+#: Colour levels of the force lines, blue (weak) to red (the strongest bin). The ColorRGBA objects are shared by
+#: every marker built here (building 1300 of them per marker costs more than the rest): do not edit them in place.
 COLOUR_LEVELS = 64
 _PALETTE = tuple(ColorRGBA(r=level, g=0.2 * (1.0 - level), b=1.0 - level, a=1.0)
                  for level in np.linspace(0.0, 1.0, COLOUR_LEVELS).tolist())
@@ -52,23 +60,24 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
     """One LINE_LIST marker: a line per loaded bin, from the surface into the gel along the applied force.
 
     Lines are scaled so that `newtons_per_metre` newtons draw one metre (the default draws 50 mN, a firmly
-    loaded bin, as 1 cm under the 49 x 51 mm surface) and coloured by |F| relative to the strongest bin. Bins
-    below `min_force_n` get no line; without any, the marker is deleted. RViz drops the lines `lifetime_s` after
+    loaded bin of the reference sensor, as 1 cm) and coloured by |F| relative to the strongest bin. Bins below
+    `min_force_n` (> 0) get no line; without any, the marker is deleted. RViz drops the lines `lifetime_s` after
     their estimate, so that a stopped node leaves no stale picture: it must outlast the time between two markers.
 
     One marker for all bins rather than an arrow marker per bin: building and serialising 650 arrows in Python
-    took 26 + 14 ms with every bin loaded, more than a 40 Hz frame (docs/nodes.md has the figures).
+    took about 40 ms with every bin loaded, more than a 40 Hz frame (docs/nodes.md has the figures).
     """
-    forces = np.asarray(bin_forces_n, dtype=np.float64)
-    if not np.isfinite(forces).all():
-        raise FloatingPointError("refusing to draw non-finite bin forces")
+    if not newtons_per_metre > 0 or not min_force_n > 0:
+        raise ValueError(f"need newtons_per_metre > 0 and min_force_n > 0, got {newtons_per_metre}, {min_force_n}")
+    forces = checked_forces(bin_forces_n, grid)
     magnitudes = np.linalg.norm(forces, axis=-1)
     loaded = magnitudes >= min_force_n
+    lifetime_ns = round(lifetime_s * 1e9)
+    # color: the lines take the per-point colours; an opaque marker colour keeps RViz from blending them.
     marker = Marker(header=Header(stamp=stamp, frame_id=frame_id), ns="bin_forces", id=0, type=Marker.LINE_LIST,
                     action=Marker.ADD if loaded.any() else Marker.DELETE,
-                    scale=Vector3(x=0.2 * grid.bin_width_m),
-                    lifetime=Duration(sec=int(lifetime_s),
-                                      nanosec=int(round((lifetime_s % 1.0) * 1e9)) % 1_000_000_000))
+                    scale=Vector3(x=0.2 * grid.bin_width_m), color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0),
+                    lifetime=Duration(sec=lifetime_ns // 1_000_000_000, nanosec=lifetime_ns % 1_000_000_000))
     if marker.action == Marker.DELETE:
         return MarkerArray(markers=[marker])
     centres = grid.bin_centers_m()[loaded]
@@ -78,7 +87,6 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
     tails = np.column_stack([centres, np.zeros(len(centres))])
     ends = np.stack([tails, heads], axis=1).reshape(-1, 3).tolist()
     marker.points = [Point(x=x, y=y, z=z) for x, y, z in ends]
-    peak = max(float(magnitudes.max()), np.finfo(np.float64).tiny)
-    levels = np.rint(magnitudes[loaded] / peak * (COLOUR_LEVELS - 1)).astype(int).tolist()
+    levels = np.rint(magnitudes[loaded] / magnitudes.max() * (COLOUR_LEVELS - 1)).astype(int).tolist()
     marker.colors = [_PALETTE[level] for level in levels for _ in range(2)]
     return MarkerArray(markers=[marker])

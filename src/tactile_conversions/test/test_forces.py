@@ -52,7 +52,7 @@ def test_markers_are_one_line_per_loaded_bin_into_the_gel(grid):
     markers = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface").markers
     assert len(markers) == 1
     lines = markers[0]
-    assert (lines.type, lines.action) == (Marker.LINE_LIST, Marker.ADD)
+    assert (lines.type, lines.action) == (Marker.LINE_LIST, Marker.ADD) and lines.color.a == 1.0
     assert len(lines.points) == len(lines.colors) == 4
     centre = grid.bin_centers_m()[3, 7]
     strongest = next(i for i in (0, 2) if lines.points[i].x == pytest.approx(centre[0])
@@ -79,10 +79,17 @@ def test_no_load_deletes_the_lines(grid):
 def test_lines_live_as_long_as_asked(grid):
     lines = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", lifetime_s=2.5).markers[0]
     assert (lines.lifetime.sec, lines.lifetime.nanosec) == (2, 500_000_000)
+    lines = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", lifetime_s=1.9999999999).markers[0]
+    assert (lines.lifetime.sec, lines.lifetime.nanosec) == (2, 0)
 
 
-def test_non_finite_forces_are_never_drawn(grid):
+def test_non_finite_or_misshapen_forces_and_bad_scales_are_never_drawn(grid):
     forces = loaded_bins(grid)
     forces[5, 5, 2] = np.inf
     with pytest.raises(FloatingPointError):
         force_markers(forces, grid, Time(), "tactile_surface")
+    with pytest.raises(ValueError, match="shape"):
+        force_markers(np.zeros((grid.cols, grid.rows, 3)), grid, Time(), "tactile_surface")
+    for bad in ({"newtons_per_metre": 0.0}, {"min_force_n": 0.0}):
+        with pytest.raises(ValueError, match="> 0"):
+            force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", **bad)

@@ -6,11 +6,12 @@
   model_int8.onnx     int8-quantized ONNX graph    (fusion layer in float)
   model_fp16.onnx     float16 ONNX graph
   training.json       how it was trained: training config, data, split sizes, wall time, history
-  metrics.json        test metrics of every backend / precision
+  metrics.json        test metrics of every backend / precision, with the SHA-256 of the file each one ran
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -42,6 +43,20 @@ def default_model_dir() -> Path:
         return Path(get_package_share_directory("tactile_fusion")) / "models" / "default"
     except (ImportError, LookupError):
         return here
+
+
+def backend_file(model_dir: str | Path, backend: str, precision: str) -> Path:
+    """The file a backend runs: the state dict for torch, the precision's ONNX graph for ONNX Runtime."""
+    return Path(model_dir) / (STATE_DICT if backend == "torch" else ONNX_FILES[precision])
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes (metrics.json records it for every file it has figures of)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
 
 
 def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = "") -> Path:

@@ -7,7 +7,9 @@ backend runs back to back, as in the fusion node. The figure is the median over 
 percentile, and the ratio to ONNX Runtime float32 measured in the same run (the baseline).
 
 Accuracy: the test-split metrics of each backend and precision that `tactile-fusion train` wrote into the model
-directory's metrics.json (None for a directory without one).
+directory's metrics.json, for the files it measured: an entry whose file (ONNX graph or state dict) is no longer
+the one metrics.json records the SHA-256 of (e.g. re-exported with other package versions) gets None and is listed
+under `accuracy_stale`. None everywhere for a directory without metrics.json.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_fusion.artifacts import METRICS_JSON, default_model_dir
+from tactile_fusion.artifacts import METRICS_JSON, backend_file, default_model_dir, file_sha256
 from tactile_fusion.inference import BACKENDS, load_predictor
 
 BASELINE = "onnxruntime_fp32"
@@ -45,16 +47,23 @@ def call_times_s(predictor, images: np.ndarray, reference: np.ndarray, calls: in
     return times
 
 
-def recorded_accuracy(model_dir: Path) -> dict[str, dict]:
-    """{backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n}} from the model
-    directory's metrics.json; empty when it has none."""
+def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
+    """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n}}, stale) from
+    the model directory's metrics.json: the entries whose file is still the one measured, and the keys of those
+    whose file changed since (or was not fingerprinted). ({}, []) without metrics.json."""
     path = model_dir / METRICS_JSON
     if not path.exists():
-        return {}
-    backends = json.loads(path.read_text()).get("backends", {})
-    return {key: {"rmse_bin_fz_n": entry["rmse_bin_n"][2], "rmse_total_fz_n": entry["rmse_total_n"][2],
-                  "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n")}
-            for key, entry in backends.items()}
+        return {}, []
+    accuracy, stale = {}, []
+    for key, entry in json.loads(path.read_text()).get("backends", {}).items():
+        backend, precision = key.split("_", 1)
+        model_file = backend_file(model_dir, backend, precision)
+        if not model_file.exists() or entry.get("model_file_sha256") != file_sha256(model_file):
+            stale.append(key)
+            continue
+        accuracy[key] = {"rmse_bin_fz_n": entry["rmse_bin_n"][2], "rmse_total_fz_n": entry["rmse_total_n"][2],
+                         "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n")}
+    return accuracy, stale
 
 
 def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int = 30,
@@ -73,7 +82,7 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
     while any(len(t) < runs for t in times.values()):
         for key, predictor in predictors.items():
             times[key] += call_times_s(predictor, images, reference, min(block, runs - len(times[key])))
-    accuracy = recorded_accuracy(model_dir)
+    accuracy, stale = recorded_accuracy(model_dir)
     results = {key: {"ms_per_frame": float(np.median(t) * 1e3), "p90_ms": float(np.percentile(t, 90) * 1e3),
                      "accuracy": accuracy.get(key)}
                for key, t in times.items()}
@@ -83,4 +92,5 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
             "image_size": baseline.image_size, "batch": 1, "runs": runs, "rounds": -(-runs // block),
             "threads": threads,
             "statistic": "median over runs of one predict() call, input checks included",
-            "accuracy_source": f"{METRICS_JSON} (test split, written by tactile-fusion train)" if accuracy else None}
+            "accuracy_source": f"{METRICS_JSON} (test split, written by tactile-fusion train)" if accuracy else None,
+            "accuracy_stale": stale}

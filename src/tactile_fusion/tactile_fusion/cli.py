@@ -136,8 +136,10 @@ def cmd_export(args) -> int:
     from tactile_fusion.pipeline import export_model_dir
 
     model_dir = Path(args.model) if args.model else default_model_dir()
-    for precision, path in export_model_dir(model_dir, load_sensor(args.sensor)).items():
+    paths, calibration = export_model_dir(model_dir, load_sensor(args.sensor))
+    for precision, path in paths.items():
         print(f"{precision}: {path}")
+    print(f"int8 calibrated on {calibration}")
     return 0
 
 
@@ -152,6 +154,8 @@ def cmd_bench(args) -> int:
             accuracy = entry["accuracy"]
             error = (f"  test split Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
                      f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")
+            if name in report["accuracy_stale"]:
+                error = "  (accuracy unknown: the file changed since metrics.json was written)"
             print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
                   f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']}){error}")
     return 0

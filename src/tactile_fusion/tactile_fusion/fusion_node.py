@@ -8,11 +8,11 @@ Reference frames: the model sees each camera's difference to a frame taken at re
 `~/capture_reference` service, std_srvs/Trigger) the node averages the next `reference_bundles` complete
 bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them.
 
-RViz markers (one line per loaded bin, `tactile_conversions.forces.force_markers`) cost about 5 ms to build and
-serialise with every bin loaded, several times an inference (about 1 ms). A display needs no more than
-`markers_rate_hz` (default 10) of them a second. The first markers, one arrow marker per bin, took 38 ms: published
-with every estimate at the sensor's 40 Hz they made the node fall behind its bundles (estimates up to 184 ms old,
-`tactile-latency`).
+RViz markers (one line per loaded bin, `tactile_conversions.forces.force_markers`) cost 2-5 ms to build and
+serialise with every bin loaded, more than an inference (about 1 ms). A display needs no more than
+`markers_rate_hz` (default 10) of them a second. The first markers, one arrow marker per bin, took about 40 ms:
+published with every estimate at the sensor's 40 Hz they made the node fall behind its bundles (estimates up to
+184 ms old, `tactile-latency`).
 
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
 (which shows the model its reference frame there: "no contact"), and the estimate lists it in
@@ -85,7 +85,7 @@ class FusionNode(Node):
         if self.load.add(time.perf_counter() - started, time_to_seconds(bundle.header.stamp)):
             self.get_logger().warning(
                 f"falling behind the cameras: a bundle takes {1e3 * self.load.mean_s:.1f} ms on average, they come "
-                f"every {1e3 * self.load.frame_period_s:.1f} ms, so estimates arrive later and later; a faster backend "
+                f"every {1e3 * self.load.period_s:.1f} ms, so estimates arrive later and later; a faster backend "
                 "or precision (tactile-fusion bench), a lower markers_rate_hz or publish_markers false help",
                 throttle_duration_sec=10.0)
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, default_model_dir, load_model, read_model_json
+from tactile_fusion.artifacts import ModelFileError, backend_file, default_model_dir, load_model, read_model_json
 from tactile_fusion.export import copy_to_half
 from tactile_fusion.model import ForceFusionNet, difference_images
 
@@ -174,7 +174,7 @@ def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxrunt
     description = read_model_json(model_dir)
     if backend == "torch":
         return TorchPredictor(load_model(model_dir), precision, threads)
-    path = model_dir / ONNX_FILES[precision]
+    path = backend_file(model_dir, backend, precision)
     if not path.exists():
         raise ModelFileError(f"{path} is missing: export it with `tactile-fusion export --model {model_dir}`")
     return OnnxRuntimePredictor(path, description, precision, threads)

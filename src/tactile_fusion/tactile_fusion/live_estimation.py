@@ -7,6 +7,8 @@ complete bundles (nothing may touch the surface meanwhile) and can be asked to t
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 #: Complete bundles averaged into the reference frames (the fusion node's default `reference_bundles`).
@@ -52,42 +54,49 @@ class ProcessingLoad:
     A node slower than its input drops nothing at first: the bundles wait in its subscription queue and every
     estimate is older than the one before, until the queue is full (the torch fp16 backend at 22 ms per frame
     behind 40 Hz cameras: estimates 60-270 ms old). Nothing in the estimates shows that, hence this check.
-    Both averages are exponential with weight `smoothing` for the newest value, so that one slow bundle (the
-    first inference) or one missing bundle does not count as falling behind.
+    The time per bundle is an exponential average with weight `smoothing` for the newest, so that one slow bundle
+    (the first inference) does not count as falling behind.
 
-    The time between bundles comes from their capture stamps, so that cameras running at another rate than the
-    sensor's nominal one (a camera node's `rate_hz`) are judged by their real rate; until two stamps have come,
-    the nominal `frame_period_s` stands in. A stamp that does not advance (a repeated or reordered bundle) is
-    not counted. A bag replayed faster than real time delivers bundles faster than their stamps say: that goes
-    unnoticed.
+    The time between bundles is measured from their capture stamps, so that cameras running at another rate than
+    the sensor's nominal one (a camera node's `rate_hz`) are judged by their real rate: the `PERIOD_PERCENTILE`th
+    percentile of the last `PERIOD_INTERVALS` intervals between consecutive stamps, once `MIN_INTERVALS` have come
+    (the nominal period until then). A low percentile, not a mean: a node that has fallen behind far enough to
+    fill its queue sees only the bundles the queue kept, whose stamps are a frame period apart or a multiple of it;
+    a mean of those intervals would grow with the node's own slowness and hide it. What stamps cannot tell apart
+    goes unnoticed: a node exactly k times slower than its cameras, without any spread in its time per bundle,
+    looks like cameras k times slower; a bag replayed faster than real time delivers bundles faster than their
+    stamps say. A stamp that does not advance (a repeated or reordered bundle) is not counted.
     """
 
-    def __init__(self, frame_period_s: float, smoothing: float = 0.1):
-        if not frame_period_s > 0 or not 0 < smoothing <= 1:
-            raise ValueError(f"need frame_period_s > 0 and 0 < smoothing <= 1, got {frame_period_s}, {smoothing}")
-        self.frame_period_s = frame_period_s
+    PERIOD_INTERVALS = 64
+    PERIOD_PERCENTILE = 10
+    MIN_INTERVALS = 8
+
+    def __init__(self, nominal_period_s: float, smoothing: float = 0.1):
+        if not nominal_period_s > 0 or not 0 < smoothing <= 1:
+            raise ValueError(f"need nominal_period_s > 0 and 0 < smoothing <= 1, got {nominal_period_s}, {smoothing}")
+        self.nominal_period_s = nominal_period_s
         self.smoothing = smoothing
         self.mean_s: float | None = None
+        self._intervals_s: deque[float] = deque(maxlen=self.PERIOD_INTERVALS)
         self._last_stamp_s: float | None = None
-        self._period_measured = False
+
+    @property
+    def period_s(self) -> float:
+        """The time between bundles as measured (the nominal period until enough stamps have come)."""
+        if len(self._intervals_s) < self.MIN_INTERVALS:
+            return self.nominal_period_s
+        return float(np.percentile(self._intervals_s, self.PERIOD_PERCENTILE))
 
     def add(self, duration_s: float, stamp_s: float) -> bool:
-        """Count one bundle's handling time and capture stamp; True while the average time exceeds the average
-        time between bundles."""
-        self._count_stamp(stamp_s)
+        """Count one bundle's handling time and capture stamp; True while the average time per bundle exceeds
+        the time between bundles."""
+        if self._last_stamp_s is None or stamp_s > self._last_stamp_s:
+            if self._last_stamp_s is not None:
+                self._intervals_s.append(stamp_s - self._last_stamp_s)
+            self._last_stamp_s = stamp_s
         if self.mean_s is None:
             self.mean_s = duration_s
         else:
             self.mean_s += self.smoothing * (duration_s - self.mean_s)
-        return self.mean_s > self.frame_period_s
-
-    def _count_stamp(self, stamp_s: float) -> None:
-        if self._last_stamp_s is not None and stamp_s <= self._last_stamp_s:
-            return
-        if self._last_stamp_s is not None:
-            interval_s = stamp_s - self._last_stamp_s
-            if self._period_measured:
-                self.frame_period_s += self.smoothing * (interval_s - self.frame_period_s)
-            else:
-                self.frame_period_s, self._period_measured = interval_s, True
-        self._last_stamp_s = stamp_s
+        return self.mean_s > self.period_s

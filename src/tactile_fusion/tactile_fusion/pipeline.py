@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import platform
 import time
 from dataclasses import asdict
@@ -15,7 +16,9 @@ from tactile_fusion.artifacts import (
     METRICS_JSON,
     ONNX_FILES,
     TRAINING_JSON,
+    backend_file,
     check_model_fits,
+    file_sha256,
     load_model,
     save_model,
     write_json,
@@ -27,7 +30,7 @@ from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
 from tactile_fusion.plots import plot_fz_maps
 from tactile_fusion.training import TrainConfig, TrainResult, build_model, train_phases
-from tactile_sim import load_scene
+from tactile_sim import SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
@@ -98,14 +101,16 @@ def export_all(model: ForceFusionNet, out_dir: Path, calibration: FrameSet) -> d
 
 
 def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> tuple[dict, dict]:
-    """Test metrics of every backend and precision, with each one's largest deviation from torch fp32 (N), and
-    the predictions: ({backend_precision: metrics}, {backend_precision: (N, rows, cols, 3) newtons})."""
+    """Test metrics of every backend and precision, with each one's largest deviation from torch fp32 (N) and the
+    file it ran (name and SHA-256, so that figures of a file that changed since can be told apart), and the
+    predictions: ({backend_precision: metrics}, {backend_precision: (N, rows, cols, 3) newtons})."""
     results, predictions = {}, {}
     for backend, precisions in BACKENDS.items():
         for precision in precisions:
             key = f"{backend}_{precision}"
             metrics, predictions[key] = evaluate(load_predictor(model_dir, backend, precision, threads), test)
-            results[key] = metrics
+            model_file = backend_file(model_dir, backend, precision)
+            results[key] = {**metrics, "model_file": model_file.name, "model_file_sha256": file_sha256(model_file)}
     reference = predictions["torch_fp32"]
     for key, predicted in predictions.items():
         results[key]["max_abs_deviation_from_torch_fp32_n"] = float(np.abs(predicted - reference).max())
@@ -152,15 +157,39 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
     return metrics
 
 
-def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> dict:
-    """Re-export the ONNX graphs of a model directory from its torch state dict.
-
-    The int8 graph is calibrated on frames of the default scene's training split (`calibration_indices`),
-    simulated for `sensor`, which must be the model's.
-    """
+def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> tuple[dict, str]:
+    """Re-export the ONNX graphs of a model directory from its torch state dict; ({precision: path}, what the
+    int8 graph was calibrated on). `sensor` must be the model's."""
     model_dir = Path(model_dir)
     model = load_model(model_dir)
     check_model_fits(model, sensor)
-    scene = load_scene(DEFAULT_SCENE, sensor)
-    calibration = simulate_frames(sensor, scene, calibration_indices(split_indices(len(scene), scene.seed)["train"]))
-    return export_all(model, model_dir, calibration.select_cameras(model.camera_ids))
+    calibration, described = training_calibration(model_dir, sensor)
+    return export_all(model, model_dir, calibration.select_cameras(model.camera_ids)), described
+
+
+def training_calibration(model_dir: Path, sensor: SensorDescription) -> tuple[FrameSet, str]:
+    """The int8 calibration frames of a trained model, and what they are.
+
+    The frames `train_and_export` calibrated on: `calibration_indices` of the training split of the data that
+    training.json names (a scene, or a dataset that is still there), so that a re-export reproduces the graphs
+    metrics.json has figures of. Without that record, the default scene's training split stands in.
+    """
+    record = model_dir / TRAINING_JSON
+    data = json.loads(record.read_text()).get("data", {}) if record.exists() else {}
+    kind, _, name = str(data.get("source", "")).partition(" ")
+    if kind == "dataset" and Path(name).is_dir():
+        frames = load_dataset_frames(name, sensor)
+        train = split_indices(min(data.get("frames", len(frames)), len(frames)), frames.seed)["train"]
+        return frames.subset(calibration_indices(train)), f"the training split of dataset {name}"
+    try:
+        scene = load_scene(name, sensor) if kind == "scene" else None
+    except SceneError:
+        scene = None
+    if scene is not None:
+        used, described = min(data.get("frames", len(scene)), len(scene)), f"the training split of scene {name}"
+    else:
+        scene = load_scene(DEFAULT_SCENE, sensor)
+        used, described = len(scene), (f"the training split of scene {DEFAULT_SCENE} ({TRAINING_JSON} names no data "
+                                       f"that is here: {data.get('source')!r})")
+    train = split_indices(used, scene.seed)["train"]
+    return simulate_frames(sensor, scene, calibration_indices(train)), described

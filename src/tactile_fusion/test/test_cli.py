@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON
+from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON, file_sha256
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 TINY = ["--conv-channels", "2,2,2,2", "--hidden-features", "8", "--camera-features", "8", "--fusion-rank", "4",
@@ -88,12 +88,40 @@ def test_bench_without_recorded_metrics_reports_speed_only(tiny_model, tmp_path)
     assert all(e["accuracy"] is None and e["ms_per_frame"] > 0 for e in report["backends"].values())
 
 
-def test_export_rewrites_the_onnx_graphs(tiny_model):
+def test_bench_leaves_out_the_accuracy_of_a_file_that_changed_since_it_was_measured(tiny_model, tmp_path):
+    out, _ = tiny_model
+    changed = tmp_path / "model"
+    shutil.copytree(out, changed)
+    shutil.copy(changed / ONNX_FILES["fp32"], changed / ONNX_FILES["int8"])  # a valid graph, not the one measured
+    report = json.loads(run("bench", "--model", str(changed), "--runs", "5", "--json").stdout)
+    assert report["accuracy_stale"] == ["onnxruntime_int8"]
+    assert report["backends"]["onnxruntime_int8"]["accuracy"] is None
+    assert report["backends"]["onnxruntime_fp32"]["accuracy"] is not None
+    assert "accuracy unknown" in run("bench", "--model", str(changed), "--runs", "5").stdout
+
+
+def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
+    """The tiny model trained on the first 60 frames of paper_grid: a re-export calibrates int8 on the same
+    training frames and writes byte for byte the graphs whose figures metrics.json holds."""
     out, _ = tiny_model
     before = (out / ONNX_FILES["fp32"]).stat().st_mtime_ns
     result = run("export", "--model", str(out), "--quiet")
     assert (out / ONNX_FILES["fp32"]).stat().st_mtime_ns > before
-    assert "int8" in result.stdout
+    assert "int8 calibrated on the training split of scene paper_grid" in result.stdout
+    measured = json.loads((out / METRICS_JSON).read_text())["backends"]
+    for precision, name in ONNX_FILES.items():
+        assert measured[f"onnxruntime_{precision}"]["model_file"] == name
+        assert measured[f"onnxruntime_{precision}"]["model_file_sha256"] == file_sha256(out / name), precision
+
+
+def test_export_without_a_training_record_calibrates_on_the_default_scene(tiny_model, tmp_path):
+    out, _ = tiny_model
+    bare = tmp_path / "model"
+    shutil.copytree(out, bare)
+    (bare / TRAINING_JSON).unlink()
+    result = run("export", "--model", str(bare), "--quiet")
+    assert "int8 calibrated on the training split of scene paper_grid (training.json names no data" in result.stdout
+    assert (bare / ONNX_FILES["int8"]).is_file()
 
 
 def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):

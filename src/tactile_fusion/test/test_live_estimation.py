@@ -1,3 +1,5 @@
+from collections import deque
+
 import numpy as np
 import pytest
 
@@ -39,7 +41,7 @@ def every(period_s: float, start_s: float = 100.0):
 
 
 def test_one_slow_bundle_is_not_falling_behind_but_a_slow_stream_is_until_it_recovers():
-    load = ProcessingLoad(frame_period_s=0.025, smoothing=0.1)
+    load = ProcessingLoad(nominal_period_s=0.025, smoothing=0.1)
     stamps = every(0.025)
     assert not load.add(0.002, next(stamps))
     assert not load.add(0.040, next(stamps))  # the first inference: the average stays below 25 ms
@@ -52,25 +54,50 @@ def test_one_slow_bundle_is_not_falling_behind_but_a_slow_stream_is_until_it_rec
 
 def test_the_cameras_real_rate_counts_not_the_nominal_one():
     # 20 ms per bundle keeps up with the nominal 40 Hz, not with cameras running at 60 Hz.
-    fast = ProcessingLoad(frame_period_s=0.025)
+    fast = ProcessingLoad(nominal_period_s=0.025)
     stamps = every(1 / 60)
     assert [fast.add(0.020, next(stamps)) for _ in range(30)][-1]
-    assert fast.frame_period_s == pytest.approx(1 / 60)
-    # 30 ms per bundle is too slow for 40 Hz, not for cameras running at 20 Hz (once two stamps have come).
-    slow = ProcessingLoad(frame_period_s=0.025)
+    assert fast.period_s == pytest.approx(1 / 60)
+    # 30 ms per bundle is too slow for 40 Hz, not for cameras running at 20 Hz (once enough stamps have come).
+    slow = ProcessingLoad(nominal_period_s=0.025)
     stamps = every(0.05)
     assert slow.add(0.030, next(stamps))
-    assert not any(slow.add(0.030, next(stamps)) for _ in range(30))
+    assert not any([slow.add(0.030, next(stamps)) for _ in range(30)][ProcessingLoad.MIN_INTERVALS:])
+
+
+def kept_by_a_full_queue(period_s: float, duration_s: float, depth: int, count: int) -> list[float]:
+    """The stamps a node taking `duration_s` per bundle handles when bundles come every `period_s` into a
+    keep-last queue of `depth`: once the queue is full it drops the oldest, so the stamps handled are a period
+    apart or a multiple of it, and on average `duration_s` apart."""
+    queue, handled, now_s, produced = deque(maxlen=depth), [], 0.0, 0
+    while len(handled) < count:
+        while produced * period_s <= now_s:
+            queue.append(produced * period_s)
+            produced += 1
+        if queue:
+            handled.append(queue.popleft())
+            now_s += duration_s
+        else:
+            now_s = produced * period_s
+    return handled
+
+
+@pytest.mark.parametrize("duration_s", [0.027, 0.04, 0.06])
+def test_a_node_whose_queue_is_full_still_counts_as_falling_behind(duration_s):
+    load = ProcessingLoad(nominal_period_s=0.025)
+    behind = [load.add(duration_s, stamp_s) for stamp_s in kept_by_a_full_queue(0.025, duration_s, 10, 400)]
+    assert all(behind[100:])
 
 
 def test_repeated_or_reordered_stamps_do_not_shrink_the_period():
-    load = ProcessingLoad(frame_period_s=0.025)
-    for stamp_s in (10.0, 10.025, 10.025, 10.0, 10.05):
+    load = ProcessingLoad(nominal_period_s=0.025)
+    stamps = [0.025 * k for k in range(12)]
+    for stamp_s in stamps[:6] + [stamps[5]] * 5 + [stamps[2]] + stamps[6:]:
         load.add(0.001, stamp_s)
-    assert load.frame_period_s == pytest.approx(0.025)
+    assert load.period_s == pytest.approx(0.025)
 
 
 @pytest.mark.parametrize("period, smoothing", [(0.0, 0.1), (-1.0, 0.1), (0.025, 0.0), (0.025, 1.5)])
 def test_processing_load_rejects_bad_settings(period, smoothing):
-    with pytest.raises(ValueError, match="frame_period_s"):
+    with pytest.raises(ValueError, match="nominal_period_s"):
         ProcessingLoad(period, smoothing)

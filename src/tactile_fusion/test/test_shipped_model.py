@@ -12,6 +12,7 @@ import pytest
 
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import METRICS_JSON, default_model_dir, read_model_json
+from tactile_fusion.bench import recorded_accuracy
 from tactile_fusion.evaluation import predict_frames
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.metrics import force_metrics
@@ -41,6 +42,13 @@ def test_shipped_model_fits_the_reference_sensor(shipped):
     description = read_model_json(model_dir)
     assert tuple(description["camera_ids"]) == frames.camera_ids
     assert (description["rows"], description["cols"]) == frames.bin_forces_n.shape[1:3]
+
+
+def test_shipped_metrics_are_of_the_shipped_files(shipped):
+    """Every backend's figures in metrics.json were measured on the file that is shipped now (its SHA-256)."""
+    model_dir, _, metrics = shipped
+    accuracy, stale = recorded_accuracy(model_dir)
+    assert stale == [] and set(accuracy) == set(metrics["backends"])
 
 
 def test_shipped_model_is_as_accurate_as_its_metrics_say_on_fresh_simulated_frames(shipped):
