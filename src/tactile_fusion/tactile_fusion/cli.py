@@ -155,7 +155,10 @@ def cmd_bench(args) -> int:
             error = (f"  test split Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
                      f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")
             if name in report["accuracy_stale"]:
-                error = "  (accuracy unknown: the file changed since metrics.json was written)"
+                backend, precision = name.split("_", 1)
+                model = f" --model {args.model}" if args.model else ""
+                error = (f"  (accuracy unknown: the file changed since metrics.json was written; measure it with "
+                         f"tactile-fusion eval{model} --backend {backend} --precision {precision})")
             print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
                   f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']}){error}")
     return 0
