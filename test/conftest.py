@@ -18,6 +18,14 @@ def ros_domain(monkeypatch):
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 
+def group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
 def kill_group(pgid: int) -> None:
     with contextlib.suppress(ProcessLookupError):  # the whole group has exited already
         os.killpg(pgid, signal.SIGKILL)
@@ -39,7 +47,9 @@ def run_graph_tool():
             kill_group(process.pid)
             process.communicate()
             raise
-        kill_group(process.pid)  # nothing should be left; if something is, it must not outlive the test
+        if group_alive(process.pid):
+            kill_group(process.pid)
+            pytest.fail(f"{args[0]} exited but left processes of its group running (killed now)")
         return subprocess.CompletedProcess(args, process.returncode, stdout, stderr)
 
     return run

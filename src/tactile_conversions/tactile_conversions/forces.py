@@ -19,10 +19,11 @@ from tactile_description import BinGrid
 from tactile_msgs.msg import ForceDistribution
 
 
-def checked_forces(bin_forces_n: np.ndarray, grid: BinGrid) -> np.ndarray:
-    """The forces as float64 if they have the grid's shape (rows, cols, 3) and are finite; else ValueError or
-    FloatingPointError (nothing non-finite is published or drawn)."""
-    forces = np.asarray(bin_forces_n, dtype=np.float64)
+def checked_forces(bin_forces_n: np.ndarray, grid: BinGrid, dtype: type = np.float64) -> np.ndarray:
+    """The forces as `dtype` if they have the grid's shape (rows, cols, 3) and are finite in it; else ValueError or
+    FloatingPointError (nothing non-finite is published or drawn: a float64 above 3.4e38 is Inf in float32)."""
+    with np.errstate(over="ignore"):  # an overflow to Inf is reported below
+        forces = np.asarray(bin_forces_n, dtype=dtype)
     if forces.shape != (grid.rows, grid.cols, 3):
         raise ValueError(f"bin forces have shape {forces.shape}, the grid needs ({grid.rows}, {grid.cols}, 3)")
     if not np.isfinite(forces).all():
@@ -33,7 +34,7 @@ def checked_forces(bin_forces_n: np.ndarray, grid: BinGrid) -> np.ndarray:
 def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
                            camera_ids: Sequence[str], missing_camera_ids: Sequence[str]) -> ForceDistribution:
     """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression)."""
-    forces = checked_forces(bin_forces_n, grid).astype(np.float32)
+    forces = checked_forces(bin_forces_n, grid, np.float32)
     total = forces.astype(np.float64).sum(axis=(0, 1))
     msg = ForceDistribution(header=Header(stamp=stamp, frame_id=frame_id), rows=grid.rows, cols=grid.cols,
                             bin_size_x_m=grid.bin_width_m, bin_size_y_m=grid.bin_length_m,
@@ -67,8 +68,9 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
     One marker for all bins rather than an arrow marker per bin: building and serialising 650 arrows in Python
     took about 40 ms with every bin loaded, more than a 40 Hz frame (docs/nodes.md has the figures).
     """
-    if not newtons_per_metre > 0 or not min_force_n > 0:
-        raise ValueError(f"need newtons_per_metre > 0 and min_force_n > 0, got {newtons_per_metre}, {min_force_n}")
+    if not newtons_per_metre > 0 or not min_force_n > 0 or not 0 < lifetime_s < float("inf"):
+        raise ValueError(f"need newtons_per_metre > 0, min_force_n > 0 and a finite lifetime_s > 0, got "
+                         f"{newtons_per_metre}, {min_force_n}, {lifetime_s}")
     forces = checked_forces(bin_forces_n, grid)
     magnitudes = np.linalg.norm(forces, axis=-1)
     loaded = magnitudes >= min_force_n

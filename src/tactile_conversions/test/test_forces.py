@@ -46,6 +46,10 @@ def test_non_finite_or_misshapen_forces_are_never_published(grid):
         force_distribution_msg(forces, grid, Time(), "f", [], [])
     with pytest.raises(ValueError, match="shape"):
         force_distribution_msg(np.zeros((3, 3, 3)), grid, Time(), "f", [], [])
+    huge = loaded_bins(grid).astype(np.float64)
+    huge[1, 1, 2] = 1e39  # finite in float64, Inf in the message's float32
+    with pytest.raises(FloatingPointError):
+        force_distribution_msg(huge, grid, Time(), "f", [], [])
 
 
 def test_markers_are_one_line_per_loaded_bin_into_the_gel(grid):
@@ -90,6 +94,7 @@ def test_non_finite_or_misshapen_forces_and_bad_scales_are_never_drawn(grid):
         force_markers(forces, grid, Time(), "tactile_surface")
     with pytest.raises(ValueError, match="shape"):
         force_markers(np.zeros((grid.cols, grid.rows, 3)), grid, Time(), "tactile_surface")
-    for bad in ({"newtons_per_metre": 0.0}, {"min_force_n": 0.0}):
+    for bad in ({"newtons_per_metre": 0.0}, {"min_force_n": 0.0}, {"lifetime_s": 0.0}, {"lifetime_s": np.nan},
+                {"lifetime_s": np.inf}):
         with pytest.raises(ValueError, match="> 0"):
             force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", **bad)

@@ -49,15 +49,19 @@ def call_times_s(predictor, images: np.ndarray, reference: np.ndarray, calls: in
 
 def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
     """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n}}, stale) from
-    the model directory's metrics.json: the entries whose file is still the one measured, and the keys of those
-    whose file changed since (or was not fingerprinted). ({}, []) without metrics.json."""
+    the model directory's metrics.json, for the backends and precisions there are now: the entries whose file is
+    still the one measured, and the keys of those whose file changed since (or has no recorded SHA-256).
+    ({}, []) without metrics.json."""
     path = model_dir / METRICS_JSON
     if not path.exists():
         return {}, []
+    recorded = json.loads(path.read_text()).get("backends", {})
     accuracy, stale = {}, []
-    for key, entry in json.loads(path.read_text()).get("backends", {}).items():
-        backend, precision = key.split("_", 1)
-        model_file = backend_file(model_dir, backend, precision)
+    for backend, precision in ((b, p) for b, precisions in BACKENDS.items() for p in precisions):
+        key = f"{backend}_{precision}"
+        entry, model_file = recorded.get(key), backend_file(model_dir, backend, precision)
+        if entry is None:
+            continue
         if not model_file.exists() or entry.get("model_file_sha256") != file_sha256(model_file):
             stale.append(key)
             continue
@@ -83,7 +87,8 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
         for key, predictor in predictors.items():
             times[key] += call_times_s(predictor, images, reference, min(block, runs - len(times[key])))
     accuracy, stale = recorded_accuracy(model_dir)
-    results = {key: {"ms_per_frame": float(np.median(t) * 1e3), "p90_ms": float(np.percentile(t, 90) * 1e3),
+    results = {key: {"backend": predictors[key].backend, "precision": predictors[key].precision,
+                     "ms_per_frame": float(np.median(t) * 1e3), "p90_ms": float(np.percentile(t, 90) * 1e3),
                      "accuracy": accuracy.get(key)}
                for key, t in times.items()}
     for entry in results.values():

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -56,7 +57,11 @@ def cmd_train(args) -> int:
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
     frames = training_frames(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
-    source = f"dataset {args.dataset}" if args.dataset else f"scene {args.scene}"
+    # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
+    if args.dataset:
+        source = f"dataset {Path(args.dataset).resolve()}"
+    else:
+        source = f"scene {Path(args.scene).resolve() if Path(args.scene).is_file() else args.scene}"
     metrics = train_and_export(sensor, frames, _model_config(args), _train_config(args), args.out, args.resume,
                                progress=not args.quiet, threads=args.threads, data_source=source)
     print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
@@ -155,10 +160,10 @@ def cmd_bench(args) -> int:
             error = (f"  test split Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
                      f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")
             if name in report["accuracy_stale"]:
-                backend, precision = name.split("_", 1)
-                model = f" --model {args.model}" if args.model else ""
-                error = (f"  (accuracy unknown: the file changed since metrics.json was written; measure it with "
-                         f"tactile-fusion eval{model} --backend {backend} --precision {precision})")
+                model = f" --model {shlex.quote(str(args.model))}" if args.model else ""
+                error = (f"  (accuracy unknown: metrics.json has no figures of this file as it is now; measure it "
+                         f"with tactile-fusion eval{model} --backend {entry['backend']} --precision "
+                         f"{entry['precision']})")
             print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
                   f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']}){error}")
     return 0

@@ -58,14 +58,17 @@ class ProcessingLoad:
     (the first inference) does not count as falling behind.
 
     The time between bundles is measured from their capture stamps, so that cameras running at another rate than
-    the sensor's nominal one (a camera node's `rate_hz`) are judged by their real rate: the `PERIOD_PERCENTILE`th
-    percentile of the last `PERIOD_INTERVALS` intervals between consecutive stamps, once `MIN_INTERVALS` have come
-    (the nominal period until then). A low percentile, not a mean: a node that has fallen behind far enough to
-    fill its queue sees only the bundles the queue kept, whose stamps are a frame period apart or a multiple of it;
-    a mean of those intervals would grow with the node's own slowness and hide it. What stamps cannot tell apart
-    goes unnoticed: a node exactly k times slower than its cameras, without any spread in its time per bundle,
-    looks like cameras k times slower; a bag replayed faster than real time delivers bundles faster than their
-    stamps say. A stamp that does not advance (a repeated or reordered bundle) is not counted.
+    the sensor's nominal one (a camera node's `rate_hz`) are judged by their real rate: of the last
+    `PERIOD_INTERVALS` intervals between consecutive stamps, the median of those shorter than 1.5 times their
+    `PERIOD_PERCENTILE`th percentile, once `MIN_INTERVALS` have come (the nominal period until then). Not a plain
+    mean or median: a node that has fallen behind far enough to fill its queue sees only the bundles the queue
+    kept, whose stamps are a frame period apart or a multiple of it, and an average over all of them would grow
+    with the node's own slowness and hide it. Not the low percentile itself: stamps jitter (a bundle's stamp is
+    the median of its cameras'), which would put it a millisecond or two below the real period.
+    What stamps cannot tell apart goes unnoticed: a node exactly k times slower than its cameras, without any
+    spread in its time per bundle, looks like cameras k times slower; a bag replayed faster than real time
+    delivers bundles faster than their stamps say. A stamp that does not advance (a repeated or reordered bundle)
+    is not counted.
     """
 
     PERIOD_INTERVALS = 64
@@ -86,7 +89,9 @@ class ProcessingLoad:
         """The time between bundles as measured (the nominal period until enough stamps have come)."""
         if len(self._intervals_s) < self.MIN_INTERVALS:
             return self.nominal_period_s
-        return float(np.percentile(self._intervals_s, self.PERIOD_PERCENTILE))
+        intervals = np.asarray(self._intervals_s)
+        low = np.percentile(intervals, self.PERIOD_PERCENTILE)
+        return float(np.median(intervals[intervals < 1.5 * low]))
 
     def add(self, duration_s: float, stamp_s: float) -> bool:
         """Count one bundle's handling time and capture stamp; True while the average time per bundle exceeds

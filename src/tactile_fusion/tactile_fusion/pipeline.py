@@ -16,6 +16,7 @@ from tactile_fusion.artifacts import (
     METRICS_JSON,
     ONNX_FILES,
     TRAINING_JSON,
+    ModelFileError,
     backend_file,
     check_model_fits,
     file_sha256,
@@ -23,14 +24,14 @@ from tactile_fusion.artifacts import (
     save_model,
     write_json,
 )
-from tactile_fusion.data import FrameSet, load_dataset_frames, simulate_frames, split_indices
+from tactile_fusion.data import DatasetMismatchError, FrameSet, load_dataset_frames, simulate_frames, split_indices
 from tactile_fusion.evaluation import evaluate
 from tactile_fusion.export import export_onnx, quantize_int8
 from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
 from tactile_fusion.plots import plot_fz_maps
 from tactile_fusion.training import TrainConfig, TrainResult, build_model, train_phases
-from tactile_sim import SceneError, load_scene
+from tactile_sim import DatasetError, SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
@@ -171,25 +172,25 @@ def training_calibration(model_dir: Path, sensor: SensorDescription) -> tuple[Fr
     """The int8 calibration frames of a trained model, and what they are.
 
     The frames `train_and_export` calibrated on: `calibration_indices` of the training split of the data that
-    training.json names (a scene, or a dataset that is still there), so that a re-export reproduces the graphs
-    metrics.json has figures of. Without that record, the default scene's training split stands in.
+    training.json names (a scene, or a dataset), so that a re-export reproduces the graphs metrics.json has
+    figures of. A model directory without training.json gets the default scene's training split; one whose
+    training data cannot be found is refused (ModelFileError), rather than silently calibrated on other data.
     """
     record = model_dir / TRAINING_JSON
-    data = json.loads(record.read_text()).get("data", {}) if record.exists() else {}
-    kind, _, name = str(data.get("source", "")).partition(" ")
-    if kind == "dataset" and Path(name).is_dir():
-        frames = load_dataset_frames(name, sensor)
-        train = split_indices(min(data.get("frames", len(frames)), len(frames)), frames.seed)["train"]
-        return frames.subset(calibration_indices(train)), f"the training split of dataset {name}"
-    try:
-        scene = load_scene(name, sensor) if kind == "scene" else None
-    except SceneError:
-        scene = None
-    if scene is not None:
-        used, described = min(data.get("frames", len(scene)), len(scene)), f"the training split of scene {name}"
+    if record.exists():
+        data = json.loads(record.read_text()).get("data", {})
+        kind, _, name = str(data.get("source", "")).partition(" ")
+        note = ""
     else:
-        scene = load_scene(DEFAULT_SCENE, sensor)
-        used, described = len(scene), (f"the training split of scene {DEFAULT_SCENE} ({TRAINING_JSON} names no data "
-                                       f"that is here: {data.get('source')!r})")
-    train = split_indices(used, scene.seed)["train"]
-    return simulate_frames(sensor, scene, calibration_indices(train)), described
+        data, kind, name, note = {}, "scene", DEFAULT_SCENE, f" (the model directory has no {TRAINING_JSON})"
+    if kind not in ("dataset", "scene"):
+        raise ModelFileError(f"{record} names no training data (data.source {data.get('source')!r})")
+    try:
+        source = load_dataset_frames(name, sensor) if kind == "dataset" else load_scene(name, sensor)
+    except (OSError, SceneError, DatasetError, DatasetMismatchError) as exc:
+        raise ModelFileError(f"{record} says the model was trained on {kind} {name}, which cannot be read here "
+                             f"({exc}); the int8 graph is calibrated on those training frames") from exc
+    train = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)["train"]
+    picks = calibration_indices(train)
+    frames = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks)
+    return frames, f"the training split of {kind} {name}{note}"

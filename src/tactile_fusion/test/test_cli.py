@@ -16,9 +16,9 @@ TINY = ["--conv-channels", "2,2,2,2", "--hidden-features", "8", "--camera-featur
         "--quiet"]
 
 
-def run(*args, check=True):
+def run(*args, check=True, cwd=None):
     result = subprocess.run([sys.executable, "-m", "tactile_fusion.cli", *args], capture_output=True, text=True,
-                            timeout=300, env=os.environ | {"PYTHONWARNINGS": "ignore"})
+                            timeout=300, env=os.environ | {"PYTHONWARNINGS": "ignore"}, cwd=cwd)
     if check and result.returncode != 0:
         raise AssertionError(f"tactile-fusion {' '.join(args)} failed ({result.returncode}):\n{result.stderr}")
     return result
@@ -97,9 +97,9 @@ def test_bench_leaves_out_the_accuracy_of_a_file_that_changed_since_it_was_measu
     assert report["accuracy_stale"] == ["onnxruntime_int8"]
     assert report["backends"]["onnxruntime_int8"]["accuracy"] is None
     assert report["backends"]["onnxruntime_fp32"]["accuracy"] is not None
-    assert (f"accuracy unknown: the file changed since metrics.json was written; measure it with tactile-fusion "
-            f"eval --model {changed} --backend onnxruntime --precision int8") in run("bench", "--model", str(changed),
-                                                                                      "--runs", "5").stdout
+    assert (f"accuracy unknown: metrics.json has no figures of this file as it is now; measure it with "
+            f"tactile-fusion eval --model {changed} --backend onnxruntime --precision int8") in run(
+                "bench", "--model", str(changed), "--runs", "5").stdout
 
 
 def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
@@ -122,8 +122,38 @@ def test_export_without_a_training_record_calibrates_on_the_default_scene(tiny_m
     shutil.copytree(out, bare)
     (bare / TRAINING_JSON).unlink()
     result = run("export", "--model", str(bare), "--quiet")
-    assert "int8 calibrated on the training split of scene paper_grid (training.json names no data" in result.stdout
+    assert "int8 calibrated on the training split of scene paper_grid (the model directory has no training.json)" \
+        in result.stdout
     assert (bare / ONNX_FILES["int8"]).is_file()
+
+
+def test_export_refuses_a_model_whose_training_data_is_gone(tiny_model, tmp_path):
+    out, _ = tiny_model
+    moved = tmp_path / "model"
+    shutil.copytree(out, moved)
+    training = json.loads((moved / TRAINING_JSON).read_text())
+    training["data"]["source"] = f"dataset {tmp_path / 'gone'}"
+    (moved / TRAINING_JSON).write_text(json.dumps(training))
+    before = file_sha256(moved / ONNX_FILES["int8"])
+    result = run("export", "--model", str(moved), "--quiet", check=False)
+    assert result.returncode == 2
+    assert f"says the model was trained on dataset {tmp_path / 'gone'}, which cannot be read here" in result.stderr
+    assert file_sha256(moved / ONNX_FILES["int8"]) == before
+
+
+def test_a_model_trained_on_a_dataset_by_relative_path_exports_from_anywhere(tmp_path):
+    from tactile_description import load_sensor
+    from tactile_sim import Simulator, load_scene, write_dataset
+
+    sensor = load_sensor(CONFIG / "sensor.yaml")
+    write_dataset(Simulator(sensor), load_scene("paper_grid", sensor), tmp_path / "data", progress=False, frames=40)
+    run("train", "--dataset", "data", "--epochs", "1", "--head-epochs", "1", "--out", "model", *TINY, cwd=tmp_path)
+    model = tmp_path / "model"
+    assert json.loads((model / TRAINING_JSON).read_text())["data"]["source"] == f"dataset {tmp_path / 'data'}"
+    result = run("export", "--model", str(model), "--quiet")
+    assert f"int8 calibrated on the training split of dataset {tmp_path / 'data'}" in result.stdout
+    measured = json.loads((model / METRICS_JSON).read_text())["backends"]
+    assert measured["onnxruntime_int8"]["model_file_sha256"] == file_sha256(model / ONNX_FILES["int8"])
 
 
 def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):

@@ -89,6 +89,15 @@ def test_a_node_whose_queue_is_full_still_counts_as_falling_behind(duration_s):
     assert all(behind[100:])
 
 
+def test_jittered_stamps_give_the_real_period_and_a_node_just_fast_enough_keeps_up():
+    rng = np.random.default_rng(0)
+    load = ProcessingLoad(nominal_period_s=0.05)  # the nominal rate is wrong: the cameras run at 40 Hz
+    stamps = 0.025 * np.arange(300) + rng.uniform(-0.002, 0.002, 300)  # 2 ms of stamp jitter
+    behind = [load.add(0.0245, stamp_s) for stamp_s in stamps]
+    assert load.period_s == pytest.approx(0.025, abs=3e-4)
+    assert not any(behind[100:])
+
+
 def test_repeated_or_reordered_stamps_do_not_shrink_the_period():
     load = ProcessingLoad(nominal_period_s=0.025)
     stamps = [0.025 * k for k in range(12)]
