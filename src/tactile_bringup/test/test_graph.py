@@ -79,3 +79,17 @@ def test_latency_measures_the_graph_with_its_markers_rate_and_without_stamp_jitt
     assert specs["fusion_node"].parameters["threads"] == FUSION_THREADS
     assert specs["sim_camera_node"].parameters["stamp_jitter_s"] == 0.0
     assert "markers_rate_hz" not in specs["bundle_node"].parameters
+
+
+def test_rviz_config_shows_the_topics_the_fusion_node_publishes():
+    """RViz cannot run here: check that its displays name the topics the graph publishes, with matching types."""
+    import yaml
+
+    from tactile_conversions.forces import MARKER_NAMESPACE
+    from tactile_conversions.topics import MARKERS_TOPIC, WRENCH_TOPIC
+
+    displays = yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text())["Visualization Manager"]["Displays"]
+    topics = {d["Class"]: d["Topic"]["Value"] for d in displays if "Topic" in d}
+    assert topics == {"rviz_default_plugins/MarkerArray": MARKERS_TOPIC, "rviz_default_plugins/Wrench": WRENCH_TOPIC}
+    markers = next(d for d in displays if d["Class"] == "rviz_default_plugins/MarkerArray")
+    assert markers["Namespaces"] == {MARKER_NAMESPACE: True}

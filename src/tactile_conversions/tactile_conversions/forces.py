@@ -49,6 +49,8 @@ def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:
     return WrenchStamped(header=distribution.header, wrench=Wrench(force=distribution.total_force_n))
 
 
+#: The markers' namespace (config/tactile.rviz enables it by name).
+MARKER_NAMESPACE = "bin_forces"
 #: Colour levels of the force lines, blue (weak) to red (the strongest bin). The ColorRGBA objects are shared by
 #: every marker built here (building 1300 of them per marker costs more than the rest): do not edit them in place.
 COLOUR_LEVELS = 64
@@ -76,7 +78,7 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
     loaded = magnitudes >= min_force_n
     lifetime_ns = round(lifetime_s * 1e9)
     # color: the lines take the per-point colours; an opaque marker colour keeps RViz from blending them.
-    marker = Marker(header=Header(stamp=stamp, frame_id=frame_id), ns="bin_forces", id=0, type=Marker.LINE_LIST,
+    marker = Marker(header=Header(stamp=stamp, frame_id=frame_id), ns=MARKER_NAMESPACE, id=0, type=Marker.LINE_LIST,
                     action=Marker.ADD if loaded.any() else Marker.DELETE,
                     scale=Vector3(x=0.2 * grid.bin_width_m), color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0),
                     lifetime=Duration(sec=lifetime_ns // 1_000_000_000, nanosec=lifetime_ns % 1_000_000_000))
