@@ -36,7 +36,7 @@ from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.bench import call_times_s, synthetic_frame
 from tactile_fusion.fusion_node import MARKERS_RATE_HZ
-from tactile_fusion.inference import BACKENDS, load_predictor
+from tactile_fusion.inference import BACKENDS, PRECISIONS, load_predictor
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: The fusion node's intra-op threads here, in the graph and in the baseline.
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensor", default="", help="sensor description YAML (default: the installed one)")
     parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
     parser.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
-    parser.add_argument("--precision", choices=["fp32", "int8", "fp16"], default="fp32")
+    parser.add_argument("--precision", choices=PRECISIONS, default="fp32")
     parser.add_argument("--markers-rate", type=float, default=MARKERS_RATE_HZ,
                         help="RViz marker arrays per second from the fusion node (default %(default)s; the cameras' "
                              "frame rate or more: one with every estimate)")
@@ -123,9 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     sensor_config = args.sensor or str(default_sensor_path())
     sensor = load_sensor(sensor_config)
     baseline_ms = inference_ms(args.model, args.backend, args.precision)
-    graph = [measured_spec(spec, args.markers_rate) for spec in sensor_graph(sensor, sensor_config, "sim", args.scene,
-                                                          model_dir=args.model, backend=args.backend,
-                                                          precision=args.precision)]
+    nodes = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
+                         precision=args.precision)
+    graph = [measured_spec(spec, args.markers_rate) for spec in nodes]
     rclpy.init()
     probe = LatencyProbe()
     windows = []

@@ -25,7 +25,7 @@ import torch
 from tactile_description import SensorConfigError, load_sensor
 from tactile_fusion.artifacts import ModelFileError, check_model_fits, default_model_dir
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
-from tactile_fusion.inference import BACKENDS, InputError, load_predictor
+from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.training import TrainConfig
@@ -212,7 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval", help="RMSE per bin and on the total force, per component")
     common(p, True)
     p.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
-    p.add_argument("--precision", choices=["fp32", "int8", "fp16"], default="fp32")
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32")
     p.add_argument("--scene", help="evaluate on every frame of this scene (name or YAML file)")
     p.add_argument("--dataset", help="evaluate on every frame of this dataset")
     p.add_argument("--frames", type=int, help="only the first N frames")

@@ -23,6 +23,8 @@ from tactile_fusion.export import copy_to_half
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 BACKENDS = {"onnxruntime": ("fp32", "int8", "fp16"), "torch": ("fp32", "fp16")}
+#: Every precision of some backend, for command-line choices.
+PRECISIONS = tuple(dict.fromkeys(p for precisions in BACKENDS.values() for p in precisions))
 DEFAULT_THREADS = 1
 
 
