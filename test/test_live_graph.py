@@ -8,10 +8,13 @@ import pytest
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import start_graph, start_node, stop_nodes
+from tactile_bringup.processes import spin_until, start_graph, start_node, stop_nodes
+from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.ros_time import seconds_to_time
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.artifacts import default_model_dir
-from tactile_msgs.msg import ImageBundle
+from tactile_msgs.msg import ForceDistribution, ImageBundle
+from tactile_sim import Simulator, load_scene
 
 pytestmark = pytest.mark.system
 DATA = Path(__file__).parent / "data"
@@ -47,6 +50,7 @@ def test_a_dropped_camera_degrades_bundles_and_they_recover(collect, tmp_path):
     assert {tuple(m.camera_ids) for m in bundles} <= {FULL, DEGRADED}
     stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in bundles])
     assert np.all(np.diff(stamps) > 0)
+    assert np.all(np.diff([m.sequence for m in bundles]) == 1)  # numbered, none lost on the way to the probe
     for msg in bundles:
         assert msg.max_stamp_spread_s <= 0.0125
         assert all((i.height, i.width, i.encoding, len(i.data)) == (128, 128, "mono8", 128 * 128)
@@ -86,3 +90,29 @@ def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_pat
     assert first and 1 <= len(markers) <= 3.0 * 4.0 + 1, (len(markers), logs)
     assert all(len(m.markers) == 1 and m.markers[0].type == Marker.LINE_LIST for m in first + markers)
     assert any(m.markers[0].action == Marker.ADD and m.markers[0].points for m in first + markers)
+
+
+def test_the_fusion_node_reports_bundles_lost_on_the_way(ros_probe, tmp_path):
+    sensor = load_sensor()
+    frames = list(Simulator(sensor).stream(load_scene("demo", sensor), frames=5))
+    fusion = start_node(NodeSpec("tactile_fusion", "fusion_node", "fusion",
+                                 {"sensor_config": str(default_sensor_path()), "reference_bundles": 1,
+                                  "publish_markers": False}), tmp_path)
+    bundles = ros_probe.create_publisher(ImageBundle, "/tactile/image_bundle", 10)
+    estimates = []
+    ros_probe.create_subscription(ForceDistribution, "/tactile/force_distribution", estimates.append, 10)
+    try:
+        assert spin_until(ros_probe, lambda: bundles.get_subscription_count() > 0, 60.0)
+        for frame, sequence in zip(frames, (0, 1, 2, 6, 7), strict=True):  # bundles 3, 4 and 5 got lost
+            stamp = seconds_to_time(1_700_000_000.0 + frame.time_s)
+            images = [mono8_to_msg(image, stamp, f"{c}_optical") for c, image in zip(sensor.camera_ids, frame.images,
+                                                                                     strict=True)]
+            bundles.publish(ImageBundle(sequence=sequence, camera_ids=list(sensor.camera_ids), images=images))
+            spin_until(ros_probe, lambda: False, 0.1)
+        got_all = spin_until(ros_probe, lambda: len(estimates) == 4, 30.0)  # bundle 0 became the reference
+    finally:
+        codes = stop_nodes([fusion])
+    log = (tmp_path / "fusion.log").read_text()
+    assert codes == [0] and got_all, log
+    assert "lost 3 bundle(s) before bundle 6 (3 since start)" in log
+    assert "lost" not in log.replace("lost 3 bundle(s) before bundle 6", "")  # 7 follows 6: nothing more

@@ -40,6 +40,7 @@ def image_bundle() -> ImageBundle:
     rng = np.random.default_rng(128)
     msg = ImageBundle()
     msg.header = Header(stamp=Time(sec=1_763_700_000, nanosec=25_000_000), frame_id="tactile_surface")
+    msg.sequence = 2**40 + 7  # beyond 32 bits
     msg.camera_ids = CAMERA_IDS
     for i, camera_id in enumerate(CAMERA_IDS):
         pixels = rng.integers(0, 256, (128, 128), dtype=np.uint8)

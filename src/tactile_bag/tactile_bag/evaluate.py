@@ -34,7 +34,7 @@ from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.artifacts import check_model_fits
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ReferenceFrames
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ReferenceFrames
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
@@ -171,9 +171,14 @@ def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader
 
 
 def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFrame]:
+    """The recorded ImageBundles; the ones the recorder never got (gaps in their numbers) are counted as skipped."""
+    sequence = BundleSequence()
     for topic, _, time_ns, raw in bag.messages([BUNDLE_TOPIC]):
         msg = deserialize(raw, ImageBundle, topic, time_ns)
+        sequence.add(msg.sequence)
         yield reader.frame(time_to_seconds(msg.header.stamp), list(msg.camera_ids), list(msg.images))
+    if sequence.lost:
+        reader.skipped["bundles missing from the recording (gaps in their sequence numbers)"] = sequence.lost
 
 
 def read_ground_truth(bag: BagReader, sensor: SensorDescription, topic: str = GROUND_TRUTH_TOPIC,

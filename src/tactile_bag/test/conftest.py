@@ -2,7 +2,8 @@
 
 `write_sim_bag` stamps every message as sim_camera_node and bundle_node do: each camera's image at the
 capture time plus a random offset of up to 2 ms, the ground truth at the capture time, the bundle at the median
-of its images' stamps; receive times lag the stamps by a millisecond or two.
+of its images' stamps; receive times lag the stamps by a millisecond or two. Bundles are numbered by frame
+index, so that frames left out of `frames` stand for bundles lost before the recorder.
 """
 
 from pathlib import Path
@@ -67,7 +68,8 @@ def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool
                 bag.write(GROUND_TRUTH_TOPIC, FORCES_TYPE, receive_ns + 100, serialize_message(msg))
             if bundles and msgs:
                 stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs]
-                bundle = ImageBundle(camera_ids=[m.header.frame_id.removesuffix("_optical") for m in msgs],
+                bundle = ImageBundle(sequence=frame.index,
+                                     camera_ids=[m.header.frame_id.removesuffix("_optical") for m in msgs],
                                      images=msgs, max_stamp_spread_s=max(stamps) - min(stamps))
                 bundle.header.stamp = seconds_to_time(float(np.median(stamps)))
                 bundle.header.frame_id = sensor.frame_id

@@ -68,6 +68,14 @@ def test_recorded_bundles_give_the_same_estimates(tmp_path, write_bag, sensor, s
     np.testing.assert_allclose(from_bundles.estimates_n[:n], from_images.estimates_n, rtol=1e-6)
 
 
+def test_bundles_missing_from_a_recording_are_counted(tmp_path, write_bag, sensor, sim_frames, predictor):
+    kept = sim_frames[:25] + sim_frames[28:33] + sim_frames[34:]  # bundles 25-27 and 33 never reached the recorder
+    write_bag(tmp_path / "bag", sensor, kept, images=False, bundles=True)
+    summary = evaluate_bag(tmp_path / "bag", sensor, predictor).summary()
+    assert summary["bundles"] == len(kept) == len(sim_frames) - 4
+    assert summary["skipped"] == {"bundles missing from the recording (gaps in their sequence numbers)": 4}
+
+
 def test_a_dropped_camera_degrades_recorded_bundles(tmp_path, write_bag, sensor, sim_frames, predictor):
     frames = [dataclasses.replace(f, camera_ok=np.array([c != "cam1" or f.index % 5 for c in sensor.camera_ids]))
               for f in sim_frames]

@@ -1,7 +1,8 @@
 """ROS node: camera images -> tactile_msgs/ImageBundle, with the approximate-time synchroniser.
 
 Subscribes `/tactile/<camera_id>/image` for every camera of the sensor description and publishes
-`/tactile/image_bundle`. A camera that falls silent for `camera_timeout_s` is left out of the bundles (they
+`/tactile/image_bundle`, numbering the bundles (`sequence`: 0, 1, 2, ...) so that a subscriber can tell when it
+lost some. A camera that falls silent for `camera_timeout_s` is left out of the bundles (they
 then list fewer cameras, and the fusion node reports it as missing) until it sends images again, so one broken
 camera degrades the estimate instead of stopping it.
 """
@@ -40,6 +41,7 @@ class BundleNode(Node):
         self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
         self.live_cameras: tuple[str, ...] = ()
         self.sync: ApproximateTimeSync[Image] | None = None
+        self.sequence = 0
         for camera_id in self.sensor.camera_ids:
             self.create_subscription(Image, camera_topic(camera_id),
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
@@ -62,7 +64,8 @@ class BundleNode(Node):
         if self.sync is None or camera_id not in self.live_cameras:
             return
         for bundle in self.sync.add(camera_id, time_to_seconds(msg.header.stamp), msg):
-            self.publisher.publish(self.to_msg(bundle))
+            self.publisher.publish(self.to_msg(bundle, self.sequence))
+            self.sequence += 1
 
     def check_cameras(self) -> None:
         """Rebuild the synchroniser when the set of cameras that send images changes."""
@@ -82,9 +85,9 @@ class BundleNode(Node):
         self.live_cameras = live
         self.sync = ApproximateTimeSync(live, self.queue_size, self.max_spread_s, self.min_period_s) if live else None
 
-    def to_msg(self, bundle: Bundle[Image]) -> ImageBundle:
+    def to_msg(self, bundle: Bundle[Image], sequence: int) -> ImageBundle:
         return ImageBundle(header=Header(stamp=seconds_to_time(statistics.median(bundle.stamps)),
-                                         frame_id=self.sensor.frame_id),
+                                         frame_id=self.sensor.frame_id), sequence=sequence,
                            camera_ids=list(bundle.stream_ids), images=list(bundle.items),
                            max_stamp_spread_s=bundle.spread)
 

@@ -14,6 +14,9 @@ serialise with every bin loaded, more than an inference (about 1 ms). A display 
 published with every estimate at the sensor's 40 Hz they made the node fall behind its bundles (estimates up to
 184 ms old, `tactile-latency`).
 
+Lost bundles: the bundle node numbers its bundles; a jump in the numbers is logged as "lost N bundle(s)" (every
+10 s at most, with the count since start), so that a full subscription queue does not drop bundles silently.
+
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
 (which shows the model its reference frame there: "no contact"), and the estimate lists it in
 `missing_camera_ids`.
@@ -36,7 +39,7 @@ from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOP
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.inference import InputError, load_predictor
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, ProcessingLoad, ReferenceFrames
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ProcessingLoad, ReferenceFrames
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: Default `markers_rate_hz`: enough for a display (see above).
@@ -65,6 +68,7 @@ class FusionNode(Node):
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.reference = ReferenceFrames(self.sensor.n_cameras, self.image_shape, reference_bundles)
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
+        self.sequence = BundleSequence()
         self.forces_pub = self.create_publisher(ForceDistribution, ESTIMATE_TOPIC, 10)
         self.wrench_pub = self.create_publisher(WrenchStamped, WRENCH_TOPIC, 10)
         self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, 10)
@@ -81,12 +85,24 @@ class FusionNode(Node):
 
     def on_bundle(self, bundle: ImageBundle) -> None:
         started = time.perf_counter()
+        self.count_lost_bundles(bundle.sequence)
         self.estimate(bundle)
         if self.load.add(time.perf_counter() - started, time_to_seconds(bundle.header.stamp)):
             self.get_logger().warning(
                 f"falling behind the cameras: a bundle takes {1e3 * self.load.mean_s:.1f} ms on average, they come "
                 f"every {1e3 * self.load.period_s:.1f} ms, so estimates arrive later and later; a faster backend "
                 "or precision (tactile-fusion bench), a lower markers_rate_hz or publish_markers false help",
+                throttle_duration_sec=10.0)
+
+    def count_lost_bundles(self, sequence: int) -> None:
+        restarts = self.sequence.restarts
+        lost = self.sequence.add(sequence)
+        if self.sequence.restarts > restarts:
+            self.get_logger().info(f"bundle numbers start over at {sequence}: the bundle node restarted")
+        if lost:
+            self.get_logger().warning(
+                f"lost {lost} bundle(s) before bundle {sequence} ({self.sequence.lost} since start): this node's "
+                "subscription queue overflowed because it is slower than the cameras, or the network dropped them",
                 throttle_duration_sec=10.0)
 
     def estimate(self, bundle: ImageBundle) -> None:

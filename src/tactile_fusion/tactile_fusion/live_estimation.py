@@ -1,5 +1,5 @@
-"""Live estimation without ROS: the reference frames (shared by the fusion node and offline bag evaluation) and
-the check that the fusion node keeps up with its cameras.
+"""Live estimation without ROS: the reference frames (shared by the fusion node and offline bag evaluation), the
+check that the fusion node keeps up with its cameras, and the count of bundles lost on the way to it.
 
 The model needs each camera's frame at rest; the live graph takes the pixel-wise mean of the first `count`
 complete bundles (nothing may touch the surface meanwhile) and can be asked to take it again.
@@ -65,10 +65,10 @@ class ProcessingLoad:
     kept, whose stamps are a frame period apart or a multiple of it, and an average over all of them would grow
     with the node's own slowness and hide it. Not the low percentile itself: stamps jitter (a bundle's stamp is
     the median of its cameras'), which would put it a millisecond or two below the real period.
-    What stamps cannot tell apart goes unnoticed: a node exactly k times slower than its cameras, without any
+    What stamps cannot tell apart goes unnoticed here: a node exactly k times slower than its cameras, without any
     spread in its time per bundle, looks like cameras k times slower; a bag replayed faster than real time
-    delivers bundles faster than their stamps say. A stamp that does not advance (a repeated or reordered bundle)
-    is not counted.
+    delivers bundles faster than their stamps say. Both lose bundles from a full queue, which `BundleSequence`
+    counts. A stamp that does not advance (a repeated or reordered bundle) is not counted.
     """
 
     PERIOD_INTERVALS = 64
@@ -105,3 +105,29 @@ class ProcessingLoad:
         else:
             self.mean_s += self.smoothing * (duration_s - self.mean_s)
         return self.mean_s > self.period_s
+
+
+class BundleSequence:
+    """Bundles lost before they reached this subscriber, from the gaps in their `sequence` numbers.
+
+    The bundle node numbers its bundles 0, 1, 2, ...; a jump means the bundles in between were lost: the
+    subscription queue overflowed (the subscriber is slower than the cameras) or the network dropped them. A
+    number at or below the last one means the bundle node restarted (or a recording starts over): counting
+    goes on from the new number and nothing counts as lost.
+    """
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.lost = 0      # bundles lost in all
+        self.restarts = 0  # times the numbering went back
+
+    def add(self, sequence: int) -> int:
+        """Count one bundle's number; returns how many bundles were lost right before it."""
+        if self.last is not None and sequence <= self.last:
+            self.restarts += 1
+            gap = 0
+        else:
+            gap = 0 if self.last is None else sequence - self.last - 1
+        self.last = sequence
+        self.lost += gap
+        return gap

@@ -3,7 +3,7 @@ from collections import deque
 import numpy as np
 import pytest
 
-from tactile_fusion.live_estimation import ProcessingLoad, ReferenceFrames
+from tactile_fusion.live_estimation import BundleSequence, ProcessingLoad, ReferenceFrames
 
 
 def test_reference_is_the_rounded_mean_of_complete_frames():
@@ -110,3 +110,15 @@ def test_repeated_or_reordered_stamps_do_not_shrink_the_period():
 def test_processing_load_rejects_bad_settings(period, smoothing):
     with pytest.raises(ValueError, match="nominal_period_s"):
         ProcessingLoad(period, smoothing)
+
+
+def test_gaps_in_bundle_numbers_count_as_lost_bundles():
+    sequence = BundleSequence()
+    assert [sequence.add(n) for n in (7, 8, 9, 12, 13, 20)] == [0, 0, 0, 2, 0, 6]  # counting starts anywhere
+    assert sequence.lost == 8 and sequence.restarts == 0
+
+
+def test_a_restarted_bundle_node_starts_the_count_over_without_losses():
+    sequence = BundleSequence()
+    assert [sequence.add(n) for n in (40, 41, 0, 1, 3, 3)] == [0, 0, 0, 0, 1, 0]
+    assert sequence.lost == 1 and sequence.restarts == 2  # back to 0, and the repeated 3
