@@ -4,7 +4,7 @@
     tactile-fusion eval [--model DIR] [--backend onnxruntime|torch] [--precision fp32|int8|fp16]
                         [--scene NAME | --dataset DIR] [--hard-cases] [--out DIR] [--json]
     tactile-fusion recalibrate --out DIR [--add-camera ID] [--fractions 0.1,0.2,...] [training options]
-    tactile-fusion export [--model DIR]
+    tactile-fusion export [--model DIR] [--measure]
     tactile-fusion bench [--model DIR] [--runs N] [--json]
 
 Without --model, eval, export and bench use the shipped model (models/default); without --scene or --dataset,
@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, load_sensor
-from tactile_fusion.artifacts import ModelFileError, check_model_fits, default_model_dir
+from tactile_fusion.artifacts import METRICS_JSON, ModelFileError, check_model_fits, default_model_dir
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
@@ -138,13 +138,18 @@ def cmd_recalibrate(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from tactile_fusion.pipeline import export_model_dir
+    from tactile_fusion.pipeline import export_model_dir, measure_model_dir
 
     model_dir = Path(args.model) if args.model else default_model_dir()
-    paths, calibration = export_model_dir(model_dir, load_sensor(args.sensor))
+    sensor = load_sensor(args.sensor)
+    paths, calibration = export_model_dir(model_dir, sensor)
     for precision, path in paths.items():
         print(f"{precision}: {path}")
     print(f"int8 calibrated on {calibration}")
+    if args.measure:
+        metrics = measure_model_dir(model_dir, sensor, args.threads)
+        print(metrics_table({f"{metrics['data']['source']} test ({b})": m for b, m in metrics["backends"].items()}))
+        print(f"figures written to {model_dir / METRICS_JSON}")
     return 0
 
 
@@ -163,7 +168,8 @@ def cmd_bench(args) -> int:
                 model = f" --model {shlex.quote(str(args.model))}" if args.model else ""
                 error = (f"  (accuracy unknown: metrics.json has no figures of this file as it is now; measure it "
                          f"with tactile-fusion eval{model} --backend {entry['backend']} --precision "
-                         f"{entry['precision']})")
+                         f"{entry['precision']}, or re-export and record every backend's figures with "
+                         f"tactile-fusion export{model} --measure)")
             print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
                   f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']}){error}")
     return 0
@@ -233,6 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="write the ONNX graphs (fp32, fp16, int8) of a model directory")
     common(p, True)
+    p.add_argument("--measure", action="store_true", help="then measure every backend and precision on the test "
+                   "split of the model's training data and rewrite metrics.json")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("bench", help="milliseconds per frame of every backend and precision, batch of one, next to "

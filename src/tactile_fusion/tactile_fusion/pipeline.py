@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import platform
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
@@ -131,14 +132,8 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
     model, results, split = train_model(frames, model_config, train_config, out_dir, resume, progress)
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
-    test = frames.subset(split["test"])
     export_all(model, out_dir, frames.subset(calibration_indices(split["train"])))
-    backends, predictions = evaluate_model_dir(out_dir, test, threads)
-    metrics = {"data": {"source": data_source, "scene": frames.scene, "seed": frames.seed, "split": "test",
-                        "frames": len(test)},
-               "backends": backends}
-    metrics.update({k: metrics["backends"]["onnxruntime_fp32"][k] for k in ("rmse_bin_n", "rmse_total_n")})
-    write_json(out_dir / METRICS_JSON, metrics)
+    metrics = record_test_metrics(out_dir, frames.subset(split["test"]), data_source, threads)
     write_json(out_dir / TRAINING_JSON, {
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
@@ -151,11 +146,33 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
         "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
                     "torch": torch.__version__},
     })
-    plot_fz_maps(test.bin_forces_n, predictions["onnxruntime_fp32"], out_dir / FZ_MAP_PNG,
-                 f"{frames.scene} test split: Fz per bin")
     for checkpoint in out_dir.glob(CHECKPOINTS):
         checkpoint.unlink()  # training finished: the model files supersede the checkpoints
     return metrics
+
+
+def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, threads: int | None) -> dict:
+    """Evaluate every backend and precision of a model directory on its test split; write metrics.json and the
+    Fz map (fz_map.png) of ONNX Runtime fp32. Returns the metrics written."""
+    backends, predictions = evaluate_model_dir(model_dir, test, threads)
+    metrics = {"data": {"source": data_source, "scene": test.scene, "seed": test.seed, "split": "test",
+                        "frames": len(test)},
+               "backends": backends}
+    metrics.update({k: metrics["backends"]["onnxruntime_fp32"][k] for k in ("rmse_bin_n", "rmse_total_n")})
+    write_json(model_dir / METRICS_JSON, metrics)
+    plot_fz_maps(test.bin_forces_n, predictions["onnxruntime_fp32"], model_dir / FZ_MAP_PNG,
+                 f"{test.scene} test split: Fz per bin")
+    return metrics
+
+
+def measure_model_dir(model_dir: str | Path, sensor: SensorDescription, threads: int | None) -> dict:
+    """Measure every backend and precision of a model directory again on the test split of its training data and
+    rewrite metrics.json (after an export changed the graphs, their figures are stale). Returns the metrics."""
+    model_dir = Path(model_dir)
+    model = load_model(model_dir)
+    check_model_fits(model, sensor)
+    test, source, _ = training_split(model_dir, sensor, "test")
+    return record_test_metrics(model_dir, test.select_cameras(model.camera_ids), source, threads)
 
 
 def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> tuple[dict, str]:
@@ -164,17 +181,22 @@ def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> tuple[
     model_dir = Path(model_dir)
     model = load_model(model_dir)
     check_model_fits(model, sensor)
-    calibration, described = training_calibration(model_dir, sensor)
-    return export_all(model, model_dir, calibration.select_cameras(model.camera_ids)), described
+    calibration, source, note = training_split(model_dir, sensor, "train", calibration_indices)
+    paths = export_all(model, model_dir, calibration.select_cameras(model.camera_ids))
+    return paths, f"the training split of {source}{note}"
 
 
-def training_calibration(model_dir: Path, sensor: SensorDescription) -> tuple[FrameSet, str]:
-    """The int8 calibration frames of a trained model, and what they are.
+def training_split(model_dir: Path, sensor: SensorDescription, split: str,
+                   pick: Callable[[np.ndarray], np.ndarray] = lambda indices: indices
+                   ) -> tuple[FrameSet, str, str]:
+    """Frames of one split ("train", "val", "test") of the data a model was trained on, that data ("scene NAME"
+    or "dataset PATH", as training.json says) and a note on where it came from ("" or why the default scene).
 
-    The frames `train_and_export` calibrated on: `calibration_indices` of the training split of the data that
-    training.json names (a scene, or a dataset), so that a re-export reproduces the graphs metrics.json has
-    figures of. A model directory without training.json gets the default scene's training split; one whose
-    training data cannot be found is refused (ModelFileError), rather than silently calibrated on other data.
+    The split `train_and_export` made of the data that training.json names (a scene, or a dataset), narrowed by
+    `pick` (export calibrates int8 on `calibration_indices` of the training split, as training did, so that a
+    re-export reproduces the graphs metrics.json has figures of). A model directory without training.json gets
+    the default scene's split; one whose training data cannot be found is refused (ModelFileError), rather than
+    silently given other data.
     """
     record = model_dir / TRAINING_JSON
     if record.exists():
@@ -189,8 +211,8 @@ def training_calibration(model_dir: Path, sensor: SensorDescription) -> tuple[Fr
         source = load_dataset_frames(name, sensor) if kind == "dataset" else load_scene(name, sensor)
     except (OSError, SceneError, DatasetError, DatasetMismatchError) as exc:
         raise ModelFileError(f"{record} says the model was trained on {kind} {name}, which cannot be read here "
-                             f"({exc}); the int8 graph is calibrated on those training frames") from exc
-    train = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)["train"]
-    picks = calibration_indices(train)
+                             f"({exc}); export calibrates int8 on those training frames and measures on their test "
+                             "split") from exc
+    picks = pick(split_indices(min(data.get("frames", len(source)), len(source)), source.seed)[split])
     frames = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks)
-    return frames, f"the training split of {kind} {name}{note}"
+    return frames, f"{kind} {name}", note

@@ -98,8 +98,34 @@ def test_bench_leaves_out_the_accuracy_of_a_file_that_changed_since_it_was_measu
     assert report["backends"]["onnxruntime_int8"]["accuracy"] is None
     assert report["backends"]["onnxruntime_fp32"]["accuracy"] is not None
     assert (f"accuracy unknown: metrics.json has no figures of this file as it is now; measure it with "
-            f"tactile-fusion eval --model {changed} --backend onnxruntime --precision int8") in run(
+            f"tactile-fusion eval --model {changed} --backend onnxruntime --precision int8, or re-export and record "
+            f"every backend's figures with tactile-fusion export --model {changed} --measure)") in run(
                 "bench", "--model", str(changed), "--runs", "5").stdout
+
+
+def test_export_measure_records_the_figures_of_changed_graphs(tiny_model, tmp_path):
+    import torch
+
+    out, _ = tiny_model
+    changed = tmp_path / "model"
+    shutil.copytree(out, changed)
+    weights = torch.load(changed / STATE_DICT)
+    weights["fusion.expand.bias"] += 0.5  # another model: every graph exported from it differs
+    torch.save(weights, changed / STATE_DICT)
+    before = json.loads((changed / METRICS_JSON).read_text())
+    run("export", "--model", str(changed), "--quiet")
+    stale = json.loads(run("bench", "--model", str(changed), "--runs", "3", "--json").stdout)["accuracy_stale"]
+    assert sorted(stale) == sorted(before["backends"])  # exported, not measured: every figure is stale
+
+    result = run("export", "--model", str(changed), "--measure", "--quiet")
+    assert f"figures written to {changed / METRICS_JSON}" in result.stdout
+    after = json.loads((changed / METRICS_JSON).read_text())
+    assert after["data"] == before["data"]  # the same test split: the 12 test frames of the 60 trained on
+    assert after["rmse_bin_n"] != before["rmse_bin_n"]
+    report = json.loads(run("bench", "--model", str(changed), "--runs", "3", "--json").stdout)
+    assert report["accuracy_stale"] == []
+    assert report["backends"]["onnxruntime_int8"]["accuracy"]["rmse_bin_fz_n"] == \
+        after["backends"]["onnxruntime_int8"]["rmse_bin_n"][2]
 
 
 def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
