@@ -27,7 +27,7 @@ from tactile_fusion.artifacts import METRICS_JSON, ModelFileError, check_model_f
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
-from tactile_fusion.model import ModelConfig
+from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.training import TrainConfig
 from tactile_sim import DatasetError, SceneError
 
@@ -41,7 +41,8 @@ def _model_config(args) -> ModelConfig:
     default = ModelConfig()
     channels = tuple(int(c) for c in args.conv_channels.split(",")) if args.conv_channels else default.conv_channels
     return ModelConfig(image_size=args.image_size, conv_channels=channels, hidden_features=args.hidden_features,
-                       camera_features=args.camera_features, fusion_rank=args.fusion_rank or None)
+                       camera_features=args.camera_features, fusion_rank=args.fusion_rank or None,
+                       feature_activation=args.feature_activation)
 
 
 def _train_config(args) -> TrainConfig:
@@ -195,6 +196,8 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hidden-features", type=int, default=model.hidden_features)
     parser.add_argument("--camera-features", type=int, default=model.camera_features)
     parser.add_argument("--fusion-rank", type=int, default=model.fusion_rank, help="0: dense fusion matrix")
+    parser.add_argument("--feature-activation", choices=list(FEATURE_ACTIVATIONS), default=model.feature_activation,
+                        help="of the fully connected layers (default %(default)s)")
     parser.add_argument("--out", required=True, help="output directory")
 
 

@@ -77,7 +77,7 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration_imag
 
     calibration_images: (N, C, H, W) uint8 frames (training data) that set the activation ranges.
     What stays in float, and why (measured on the shipped model, docs/learning.md):
-    - the fusion layer (the regression head, the MatMul/Gemm nodes after the last sigmoid) and the final
+    - the fusion layer (the regression head, the MatMul/Gemm nodes after the last activation) and the final
       scaling: int8 steps of a head whose outputs span four orders of magnitude (most bins ~0, peaks ~0.5 N)
       would swamp the small forces;
     - the convolutions: with 1 to 16 channels, ONNX Runtime's int8 convolution kernels are slower on x86 than
@@ -115,7 +115,8 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration_imag
 
 
 def fusion_node_names(path: str | Path) -> list[str]:
-    """Names of the graph's nodes after the last Sigmoid: the fusion layer, reshape and force scaling."""
+    """Names of the graph's nodes after the last activation (the camera features' Sigmoid or Relu): the fusion
+    layer, reshape and force scaling."""
     nodes = onnx.load(str(path)).graph.node
-    last_sigmoid = max(i for i, node in enumerate(nodes) if node.op_type == "Sigmoid")
-    return [node.name for node in nodes[last_sigmoid + 1:]]
+    last_activation = max(i for i, node in enumerate(nodes) if node.op_type in ("Sigmoid", "Relu"))
+    return [node.name for node in nodes[last_activation + 1:]]

@@ -2,7 +2,8 @@
 
 Per camera, the difference between the current image and the camera's reference (no-contact) image goes
 through the same CNN (3x3 convolutions with batch normalisation and ReLU, 2x max pooling, then fully connected
-layers with sigmoid and dropout) that yields `camera_features` (300) numbers per camera. The features of all
+layers with sigmoid (or ReLU, `feature_activation`) and dropout) that yields `camera_features` (300) numbers per
+camera. The features of all
 cameras are concatenated in the order of `camera_ids` and a linear fusion layer maps them to rows x cols x 3
 bin forces. All cameras of all frames go through the CNN as one batch.
 
@@ -24,6 +25,8 @@ GREY_LEVELS = 255.0
 SATURATED = 255.0
 #: Brightness gains outside this range are clamped (a black or blinded camera gives no usable gain).
 GAIN_RANGE = (0.25, 4.0)
+#: Activations of the fully connected layers: the paper's sigmoid, or ReLU (docs/learning.md compares them).
+FEATURE_ACTIVATIONS = {"sigmoid": torch.sigmoid, "relu": torch.relu}
 
 
 @dataclass(frozen=True)
@@ -36,6 +39,7 @@ class ModelConfig:
     camera_features: int = 300                  # per-camera features (the paper's 300)
     dropout: float = 0.1
     fusion_rank: int | None = 384               # None: one dense matrix; else a rank-limited linear map
+    feature_activation: str = "sigmoid"         # of the fully connected layers, a key of FEATURE_ACTIVATIONS
 
     def __post_init__(self):
         pooled = self.image_size // 2 ** len(self.conv_channels)
@@ -46,6 +50,9 @@ class ModelConfig:
             raise ValueError(f"ModelConfig: dropout must be in [0, 1), got {self.dropout}")
         if self.fusion_rank is not None and self.fusion_rank < 1:
             raise ValueError(f"ModelConfig: fusion_rank must be >= 1 or None, got {self.fusion_rank}")
+        if self.feature_activation not in FEATURE_ACTIVATIONS:
+            raise ValueError(f"ModelConfig: feature_activation must be one of {list(FEATURE_ACTIVATIONS)}, got "
+                             f"{self.feature_activation!r}")
 
     @property
     def flat_features(self) -> int:
@@ -60,7 +67,8 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ModelConfig:
-        d = dict(d)
+        """The config of a model.json; models saved before `feature_activation` existed used the sigmoid."""
+        d = {"feature_activation": "sigmoid", **d}
         d["conv_channels"] = tuple(d["conv_channels"])
         return cls(**d)
 
@@ -87,23 +95,25 @@ class ConvBlock(nn.Module):
 
 
 class FeatureLayer(nn.Module):
-    """Fully connected layer, batch normalisation, sigmoid, dropout: one layer of the CNN's head.
+    """Fully connected layer, batch normalisation, activation (sigmoid or ReLU), dropout: one layer of the CNN's
+    head.
 
-    The batch normalisation before the sigmoid is an addition to the paper's head: it keeps the sigmoid's input
+    The batch normalisation before the activation is an addition to the paper's head: it keeps the sigmoid's input
     centred and scaled while Adam moves the weights, so that the units do not saturate (0 or 1 for every
     frame) early in training; with it the head learns several times faster (docs/learning.md). In evaluation
     mode it is a fixed affine map that the ONNX export folds into the layer.
     """
 
-    def __init__(self, in_features: int, out_features: int, dropout: float):
+    def __init__(self, in_features: int, out_features: int, dropout: float, activation: str = "sigmoid"):
         super().__init__()
         self.linear = nn.Linear(in_features, out_features, bias=False)
         self.norm = nn.BatchNorm1d(out_features)
+        self.activation = FEATURE_ACTIVATIONS[activation]
         self.dropout = nn.Dropout(dropout)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(N, in) -> (N, out), values in (0, 1)."""
-        return self.dropout(torch.sigmoid(self.norm(self.linear(x))))
+        """(N, in) -> (N, out), values in (0, 1) (sigmoid) or >= 0 (ReLU)."""
+        return self.dropout(self.activation(self.norm(self.linear(x))))
 
 
 class CameraCNN(nn.Module):
@@ -120,8 +130,10 @@ class CameraCNN(nn.Module):
                                                                                       strict=True)))
         # Channels-last convolutions run about 30 % faster on CPU (oneDNN); the values are the same.
         self.trunk.to(memory_format=torch.channels_last)
-        self.first_layer = FeatureLayer(config.flat_features, config.hidden_features, config.dropout)
-        self.last_layer = FeatureLayer(config.hidden_features, config.camera_features, config.dropout)
+        self.first_layer = FeatureLayer(config.flat_features, config.hidden_features, config.dropout,
+                                        config.feature_activation)
+        self.last_layer = FeatureLayer(config.hidden_features, config.camera_features, config.dropout,
+                                       config.feature_activation)
 
     def hidden(self, difference: torch.Tensor) -> torch.Tensor:
         """(N, 1, H, W) difference images -> (N, hidden_features): everything before `last_layer`."""

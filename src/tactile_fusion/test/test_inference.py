@@ -16,12 +16,13 @@ from tactile_fusion.training import TrainConfig, build_model, fit
 CAMERAS = ("left", "right")
 
 
-@pytest.fixture(scope="module")
-def model_dir(tmp_path_factory, make_frames):
-    """A tiny model trained for a few epochs on synthetic frames, saved and exported in every precision."""
+@pytest.fixture(scope="module", params=["sigmoid", "relu"])
+def model_dir(tmp_path_factory, make_frames, request):
+    """A tiny model trained for a few epochs on synthetic frames, saved and exported in every precision; one with
+    each feature activation."""
     frames = make_frames(40, seed=4)
     config = ModelConfig(image_size=16, conv_channels=(4, 4), hidden_features=16, camera_features=12,
-                         fusion_rank=None)
+                         fusion_rank=None, feature_activation=request.param)
     scale = torch.tensor([0.01, 0.005, 0.1])
     model = build_model(config, frames.camera_ids, 3, 4, scale, seed=0)
     fit(model, ImageSource(frames.subset(np.arange(32)), scale), ImageSource(frames.subset(np.arange(32, 40)), scale),

@@ -1,5 +1,6 @@
 """The network: shapes from the sensor description, shared CNN over all cameras, safe scaling, hard inputs."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -170,6 +171,7 @@ def test_factored_fusion_is_one_linear_map_of_limited_rank():
     (dict(image_size=100, conv_channels=(4, 4, 4)), "divisible"),
     (dict(dropout=1.0), "dropout"),
     (dict(fusion_rank=0), "fusion_rank"),
+    (dict(feature_activation="tanh"), "feature_activation must be one of"),
 ])
 def test_bad_model_config_is_rejected_with_a_clear_error(kwargs, message):
     with pytest.raises(ValueError, match=message):
@@ -186,3 +188,22 @@ def test_bad_camera_ids_and_force_scale_are_rejected(tiny_config):
 def test_config_round_trips_through_a_dict():
     config = ModelConfig(conv_channels=(2, 4, 8), fusion_rank=None)
     assert ModelConfig.from_dict(config.to_dict()) == config
+
+
+def test_a_model_json_from_before_the_activation_choice_loads_with_the_sigmoid():
+    old = ModelConfig(feature_activation="relu").to_dict()
+    del old["feature_activation"]
+    assert ModelConfig.from_dict(old).feature_activation == "sigmoid"
+
+
+def test_camera_features_are_those_of_the_chosen_activation(tiny_config):
+    torch.manual_seed(0)
+    images = torch.randn(6, 1, tiny_config.image_size, tiny_config.image_size)
+    features = {}
+    for activation in ("sigmoid", "relu"):
+        model = ForceFusionNet(dataclasses.replace(tiny_config, feature_activation=activation), ("a", "b"), 3, 4)
+        with torch.no_grad():
+            features[activation] = model.eval().cnn(images)
+    assert features["sigmoid"].shape == features["relu"].shape == (6, tiny_config.camera_features)
+    assert float(features["sigmoid"].min()) > 0 and float(features["sigmoid"].max()) < 1
+    assert float(features["relu"].min()) == 0 < float(features["relu"].max())  # ReLU zeroes the negative ones
