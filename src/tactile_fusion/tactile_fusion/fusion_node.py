@@ -98,7 +98,8 @@ class FusionNode(Node):
         restarts = self.sequence.restarts
         lost = self.sequence.add(sequence)
         if self.sequence.restarts > restarts:
-            self.get_logger().info(f"bundle numbers start over at {sequence}: the bundle node restarted")
+            self.get_logger().info(f"bundle numbers start over at {sequence}: the bundle node restarted, or a bag "
+                                   "replay started again")
         if lost:
             self.get_logger().warning(
                 f"lost {lost} bundle(s) before bundle {sequence} ({self.sequence.lost} since start): this node's "
