@@ -149,7 +149,7 @@ def cmd_export(args) -> int:
     print(f"int8 calibrated on {calibration}")
     if args.measure:
         metrics = measure_model_dir(model_dir, sensor, args.threads)
-        print(metrics_table({f"{metrics['data']['source']} test ({b})": m for b, m in metrics["backends"].items()}))
+        print(metrics_table({f"{metrics['data']['scene']} test ({b})": m for b, m in metrics["backends"].items()}))
         print(f"figures written to {model_dir / METRICS_JSON}")
     return 0
 

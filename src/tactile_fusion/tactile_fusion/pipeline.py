@@ -37,8 +37,10 @@ from tactile_sim import DatasetError, SceneError, load_scene
 DEFAULT_SCENE = "paper_grid"
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
-#: Training frames that set the int8 activation ranges.
-CALIBRATION_FRAMES = 64
+#: Training frames that set the int8 activation ranges (min-max). With ReLU features the ranges are unbounded and a
+#: test frame beyond them is clipped: calibrated on 64 frames, the worst bin of the test split was 77 mN off float32,
+#: on 1024 frames 21 mN (per-bin Fz RMSE 3.695 and 3.708 mN against 3.669; quantizing takes 10 s instead of 7 s).
+CALIBRATION_FRAMES = 1024
 CHECKPOINTS = "checkpoint_*.pt"
 FZ_MAP_PNG = "fz_map.png"
 

@@ -206,7 +206,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     least-squares fit of the fusion layer.
 
     Why phases: an end-to-end step spends almost all its time in the convolutions at full resolution, while
-    the head (sigmoid layers and fusion) needs many more epochs than the conv filters to converge; with the
+    the head (fully connected layers and fusion) needs many more epochs than the conv filters to converge; with the
     trunk frozen its output is computed once and a head epoch costs about a tenth of an end-to-end one. And the
     fusion layer is linear: its exact least-squares weights for the final features beat what gradient steps
     reach (docs/learning.md). Each gradient phase keeps its own checkpoint in `checkpoint_dir`, so an

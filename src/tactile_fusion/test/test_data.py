@@ -83,6 +83,7 @@ def test_int8_calibration_frames_spread_over_the_training_split_not_its_opening_
     picked = calibration_indices(train)
     assert len(picked) == CALIBRATION_FRAMES and set(picked) <= set(train) and np.all(np.diff(picked) > 0)
     assert picked[0] == train[0] and picked[-1] == train[-1]
-    rest_frames = 120  # the scene opens with 120 frames at rest: only a few of them may be picked
-    assert np.sum(picked < rest_frames) <= 2
+    rest_frames = 120  # the scene opens with 120 frames at rest: they get no more than their share of the picks
+    share = np.mean(train < rest_frames)
+    assert np.sum(picked < rest_frames) <= np.ceil(share * len(picked)) + 1
     np.testing.assert_array_equal(calibration_indices(np.array([5, 9])), [5, 9])  # fewer frames than wanted: all
