@@ -99,11 +99,12 @@ class FusionNode(Node):
         lost = self.sequence.add(sequence)
         if self.sequence.restarts > restarts:
             self.get_logger().info(f"bundle numbers start over at {sequence}: the bundle node restarted, or a bag "
-                                   "replay started again")
+                                   "replay started again (or two nodes publish bundles)", throttle_duration_sec=10.0)
         if lost:
             self.get_logger().warning(
                 f"lost {lost} bundle(s) before bundle {sequence} ({self.sequence.lost} since start): this node's "
-                "subscription queue overflowed because it is slower than the cameras, or the network dropped them",
+                "subscription queue overflowed because it is slower than the cameras, the network dropped them, or a "
+                "replayed bag lacks them",
                 throttle_duration_sec=10.0)
 
     def estimate(self, bundle: ImageBundle) -> None:

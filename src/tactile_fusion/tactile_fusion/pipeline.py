@@ -39,7 +39,7 @@ DEFAULT_SCENE = "paper_grid"
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
 #: Training frames that set the int8 activation ranges (min-max). With ReLU features the ranges are unbounded and a
 #: test frame beyond them is clipped: calibrated on 64 frames, the worst bin of the test split was 77 mN off float32,
-#: on 1024 frames 21 mN (per-bin Fz RMSE 3.695 and 3.708 mN against 3.669; quantizing takes 10 s instead of 7 s).
+#: on 1024 frames 21.3 mN (per-bin Fz RMSE 3.695 and 3.708 mN against 3.669; quantizing takes 10 s instead of 7 s).
 CALIBRATION_FRAMES = 1024
 CHECKPOINTS = "checkpoint_*.pt"
 FZ_MAP_PNG = "fz_map.png"

@@ -18,7 +18,6 @@ from typing import Protocol
 
 import numpy as np
 import torch
-from torch import nn
 from tqdm import tqdm
 
 from tactile_fusion.data import FrameSet
@@ -236,16 +235,21 @@ def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:
     return None if checkpoint_dir is None else checkpoint_dir / f"checkpoint_{phase}.pt"
 
 
-def _save_checkpoint(path: Path, model: nn.Module, optimizer, scheduler, config: TrainConfig, state: dict) -> None:
+def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig, state: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    torch.save({"model": model.state_dict(), "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(), "train_config": asdict(config), "state": state}, tmp)
+    torch.save({"model": model.state_dict(), "model_config": model.config.to_dict(),
+                "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                "train_config": asdict(config), "state": state}, tmp)
     os.replace(tmp, path)  # atomic: an interruption never leaves a half-written checkpoint
 
 
-def _load_checkpoint(path: Path, model: nn.Module, optimizer, scheduler, config: TrainConfig) -> dict:
+def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig) -> dict:
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    # The model's shape is checked by load_state_dict, but not what it computes (the activation).
+    if checkpoint.get("model_config") != model.config.to_dict():
+        raise ValueError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, not "
+                         f"{model.config.to_dict()}: resume with the same model settings or delete the checkpoint")
     if checkpoint["train_config"] != asdict(config):
         raise ValueError(f"checkpoint {path} was written with training settings {checkpoint['train_config']}, "
                          f"not {asdict(config)}: resume with the same settings or delete the checkpoint")

@@ -1,5 +1,7 @@
 """The training loop: finite loss, learning, reproducibility, early stopping, checkpoints and resume."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -85,6 +87,16 @@ def test_resuming_with_other_settings_is_refused(frames, tiny_config, tmp_path):
     trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=8), checkpoint_path=checkpoint)
     with pytest.raises(ValueError, match="same settings"):
         trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=4), checkpoint_path=checkpoint, resume=True)
+
+
+def test_resuming_a_model_with_another_activation_is_refused(frames, tiny_config, tmp_path):
+    """Same weight shapes, another function: load_state_dict alone would accept the checkpoint."""
+    checkpoint = tmp_path / "checkpoint.pt"
+    sigmoid = dataclasses.replace(tiny_config, feature_activation="sigmoid")
+    relu = dataclasses.replace(tiny_config, feature_activation="relu")
+    trained(frames, sigmoid, TrainConfig(max_epochs=1, batch_size=8), checkpoint_path=checkpoint)
+    with pytest.raises(ValueError, match="same model settings"):
+        trained(frames, relu, TrainConfig(max_epochs=1, batch_size=8), checkpoint_path=checkpoint, resume=True)
 
 
 def test_early_stopping_keeps_the_best_epoch(frames, tiny_config):
