@@ -3,7 +3,8 @@
     tactile-fusion train --out DIR [--scene paper_grid | --dataset DIR] [--frames N] [--epochs N] ...
     tactile-fusion eval [--model DIR] [--backend onnxruntime|torch] [--precision fp32|int8|fp16]
                         [--scene NAME | --dataset DIR] [--hard-cases] [--out DIR] [--json]
-    tactile-fusion recalibrate --out DIR [--add-camera ID] [--fractions 0.1,0.2,...] [training options]
+    tactile-fusion recalibrate --out DIR [--add-camera ID] [--fractions 0.1,0.2,...]
+                               [--recalibration-epochs N] [training options]
     tactile-fusion export [--model DIR] [--measure]
     tactile-fusion bench [--model DIR] [--runs N] [--json]
 
@@ -18,6 +19,7 @@ import json
 import os
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -124,7 +126,9 @@ def cmd_recalibrate(args) -> int:
     args.image_size = sensor.cameras[0].output_size[0]
     fractions = [float(f) for f in args.fractions.split(",")]
     report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, args.add_camera, fractions,
-                                     _model_config(args), _train_config(args), Path(args.out),
+                                     _model_config(args),
+                                     replace(_train_config(args), recalibration_epochs=args.recalibration_epochs),
+                                     Path(args.out),
                                      progress=not (args.json or args.quiet))
     if args.json:
         print(json.dumps(report))
@@ -237,6 +241,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--add-camera", help="the camera to add (default: the sensor's last camera)")
     p.add_argument("--fractions", default="0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0",
                    help="fractions of the training data for recalibration (default %(default)s)")
+    p.add_argument("--recalibration-epochs", type=int, default=TrainConfig().recalibration_epochs,
+                   help="epochs of the retrained layers, with the head phase's batch size and learning rate "
+                   "(default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     p.set_defaults(func=cmd_recalibrate)
 

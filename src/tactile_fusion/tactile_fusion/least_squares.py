@@ -10,7 +10,9 @@ with this fit:
 X: (N, C * camera_features + 1) features of the training frames in evaluation mode, with a column of ones for
 the bias (not penalised); Y: (N, rows * cols * 3) normalised forces. The ridge is chosen on the validation
 frames. For a rank-limited fusion layer the solution is projected onto the `rank` leading right singular
-vectors of the fitted values X W (reduced-rank regression, Izenman 1975), which is the best rank-r fit.
+vectors of the centred fitted values X W (reduced-rank regression, Izenman 1975), which is the best rank-r fit;
+the bias lies outside the rank (the layer adds it after the factored matrix) and is refitted for the projected
+matrix.
 """
 
 from __future__ import annotations
@@ -60,9 +62,7 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
     for ridge in ridges:
         weights = torch.linalg.solve(gram + ridge * len(x) * penalty, rhs)       # (F + 1, O)
         if rank is not None:
-            _, _, vt = torch.linalg.svd(design @ weights, full_matrices=False)
-            basis = vt[:rank]                                                    # (r, O)
-            weights = weights @ basis.T @ basis
+            weights, basis = _reduce_rank(weights, x, y, rank)
         prediction = torch.cat([xv, torch.ones(len(xv), 1, dtype=x.dtype)], dim=1) @ weights
         scores[ridge] = float(torch.sqrt(torch.mean((prediction - yv) ** 2)))
         solutions[ridge] = (weights, basis if rank is not None else None)
@@ -71,6 +71,18 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
         _assign(model, *solutions[best])
     return {"ridge": best if scores[best] < before else None, "val_rmse": {str(k): v for k, v in scores.items()},
             "val_rmse_before": before}
+
+
+def _reduce_rank(weights: torch.Tensor, x: torch.Tensor, y: torch.Tensor, rank: int
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(F + 1, O) solution -> (its best rank-`rank` version with the least-squares bias, basis (rank, O))."""
+    matrix = weights[:-1]
+    fitted = x @ matrix
+    _, _, vt = torch.linalg.svd(fitted - fitted.mean(0), full_matrices=False)
+    basis = vt[:rank]
+    matrix = matrix @ basis.T @ basis
+    bias = y.mean(0) - x.mean(0) @ matrix
+    return torch.cat([matrix, bias[None]]), basis
 
 
 def _assign(model: ForceFusionNet, weights: torch.Tensor, basis: torch.Tensor | None) -> None:

@@ -56,13 +56,15 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
                 progress: bool = False) -> tuple[ForceFusionNet, TrainResult, float]:
     """Add the cameras of `train` that `base` lacks and retrain the last CNN layer and the fusion layer.
 
-    As in full training, the gradient phase ends with the least-squares fit of the fusion layer. Returns the
-    model, the training result and the wall time in seconds, feature caching included.
+    The gradient phase runs with `config.recalibration_phase()` and, as in full training, ends with the
+    least-squares fit of the fusion layer. Returns the model, the training result and the wall time in seconds,
+    feature caching included.
     """
     started = time.perf_counter()
     model = add_camera(base, train.camera_ids)
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
-    result = fit(model, cached_train, cached_val, config, progress=progress, desc="recalibrate")
+    result = fit(model, cached_train, cached_val, config.recalibration_phase(), progress=progress,
+                 desc="recalibrate")
     fit_fusion(model, cached_train, cached_val)
     return model, result, time.perf_counter() - started
 

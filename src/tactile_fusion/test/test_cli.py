@@ -184,8 +184,10 @@ def test_a_model_trained_on_a_dataset_by_relative_path_exports_from_anywhere(tmp
 
 def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
     result = run("recalibrate", "--frames", "60", "--epochs", "1", "--fractions", "0.5,1.0", "--out", str(tmp_path),
-                 "--json", *TINY)
+                 "--recalibration-epochs", "2", "--json", *TINY)
     report = json.loads(result.stdout)
+    assert report["train_config"]["recalibration_epochs"] == 2
+    assert [r["epochs_run"] for r in report["recalibration"]] == [2, 2]
     assert report["added_camera"] == "cam3" and report["base_cameras"] == 3
     assert [r["fraction"] for r in report["recalibration"]] == [0.5, 1.0]
     assert report["speedup_full_data"] > 0

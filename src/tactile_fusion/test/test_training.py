@@ -165,3 +165,13 @@ def test_head_phase_has_its_own_epochs_learning_rate_and_batch_size():
     assert head.seed == config.seed and head.patience == 30  # no early stopping during the warm restart
     with pytest.raises(ValueError, match="head_batch_size"):
         TrainConfig(head_batch_size=0)
+
+
+def test_recalibration_phase_is_a_head_phase_of_its_own_length():
+    config = TrainConfig(max_epochs=7, patience=3, head_epochs=30, head_learning_rate=4e-3, head_batch_size=64,
+                         recalibration_epochs=11)
+    recalibration = config.recalibration_phase()
+    assert (recalibration.max_epochs, recalibration.learning_rate, recalibration.batch_size) == (11, 4e-3, 64)
+    assert recalibration.patience == 11 and recalibration.head_epochs == 0
+    with pytest.raises(ValueError, match="recalibration_epochs"):
+        TrainConfig(recalibration_epochs=0)
