@@ -147,14 +147,12 @@ def cmd_export(args) -> int:
 
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
-    paths, calibration = export_model_dir(model_dir, sensor)
-    for precision, path in paths.items():
+    for precision, path in export_model_dir(model_dir, sensor).items():
         print(f"{precision}: {path}")
-    print(f"int8 calibrated on {calibration}")
     if args.measure:
-        metrics = measure_model_dir(model_dir, sensor, args.threads)
+        metrics, measured_on = measure_model_dir(model_dir, sensor, args.threads)
         print(metrics_table({f"{metrics['data']['scene']} test ({b})": m for b, m in metrics["backends"].items()}))
-        print(f"figures written to {model_dir / METRICS_JSON}")
+        print(f"figures of {measured_on} written to {model_dir / METRICS_JSON}")
     return 0
 
 

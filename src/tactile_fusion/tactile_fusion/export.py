@@ -14,7 +14,6 @@ import copy
 import warnings
 from pathlib import Path
 
-import numpy as np
 import onnx
 import torch
 from torch import nn
@@ -71,46 +70,41 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
     return path
 
 
-def quantize_int8(fp32_path: str | Path, int8_path: str | Path, calibration_images: np.ndarray,
-                  reference: np.ndarray) -> Path:
-    """Static int8 quantization (QDQ, per-channel weights) of the CNN's fully connected layers.
+def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
+    """Dynamic int8 quantization of the CNN's fully connected layers (per-channel int8 weights; each call quantizes
+    their input from its own range).
 
-    calibration_images: (N, C, H, W) uint8 frames (training data) that set the activation ranges.
-    What stays in float, and why (measured on the shipped model, docs/learning.md):
+    Dynamic rather than static (calibrated) quantization, measured on the shipped model (docs/learning.md): the
+    ReLU features have no upper bound, so fixed activation ranges clip frames beyond the calibration data (21 mN
+    in the worst test bin with 1024 calibration frames, 77 mN with 64); with ranges taken per call it is 8.9 mN
+    (per-bin Fz RMSE 3.672 against 3.708 mN, float32 3.669), at the same speed, and export needs no training data.
+    What stays in float, and why:
     - the fusion layer (the regression head, the MatMul/Gemm nodes after the last activation) and the final
       scaling: int8 steps of a head whose outputs span four orders of magnitude (most bins ~0, peaks ~0.5 N)
       would swamp the small forces;
     - the convolutions: with 1 to 16 channels, ONNX Runtime's int8 convolution kernels are slower on x86 than
       its float32 ones (1.7 ms against 0.6 ms per frame) and they added up to 0.14 N per bin of error.
     """
-    from onnxruntime.quantization import (
-        CalibrationDataReader,
-        CalibrationMethod,
-        QuantFormat,
-        QuantType,
-        quant_pre_process,
-        quantize_static,
-    )
-
-    class _Reader(CalibrationDataReader):
-        def __init__(self):
-            self._frames = iter(calibration_images)
-
-        def get_next(self):
-            frame = next(self._frames, None)
-            return None if frame is None else {"images": frame[None], "reference": reference}
+    from onnxruntime.quantization import QuantType, quant_pre_process, quantize_dynamic
 
     fp32_path, int8_path = Path(fp32_path), Path(int8_path)
     prepared = int8_path.with_name(int8_path.stem + ".prep.onnx")
     quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
     try:
-        quantize_static(str(prepared), str(int8_path), _Reader(), quant_format=QuantFormat.QDQ,
-                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
-                        calibrate_method=CalibrationMethod.MinMax, op_types_to_quantize=["MatMul", "Gemm"],
-                        nodes_to_exclude=fusion_node_names(prepared))
+        fusion = fusion_node_names(prepared)
+        # Dynamic quantization first rewrites every Gemm as MatMul + Add, the MatMul named "<Gemm name>_MatMul":
+        # the fusion layer is excluded under both names.
+        quantize_dynamic(str(prepared), str(int8_path), weight_type=QuantType.QInt8, per_channel=True,
+                         op_types_to_quantize=["MatMul", "Gemm"],
+                         nodes_to_exclude=[*fusion, *(f"{name}_MatMul" for name in fusion)])
     finally:
         prepared.unlink(missing_ok=True)
-    onnx.checker.check_model(onnx.load(str(int8_path)), full_check=True)
+    proto = onnx.load(str(int8_path))
+    onnx.checker.check_model(proto, full_check=True)
+    if not any(node.op_type in ("MatMul", "Gemm") and node.name.startswith(tuple(fusion)) for node in proto.graph.node):
+        int8_path.unlink()
+        raise RuntimeError(f"quantize_int8: ONNX Runtime quantized the fusion layer of {fp32_path} (its node names "
+                           "changed?); it must stay in float")
     return int8_path
 
 

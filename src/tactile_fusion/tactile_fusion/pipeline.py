@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import platform
 import time
-from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
@@ -37,10 +36,6 @@ from tactile_sim import DatasetError, SceneError, load_scene
 DEFAULT_SCENE = "paper_grid"
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
-#: Training frames that set the int8 activation ranges (min-max). With ReLU features the ranges are unbounded and a
-#: test frame beyond them is clipped: calibrated on 64 frames, the worst bin of the test split was 77 mN off float32,
-#: on 1024 frames 21.3 mN (per-bin Fz RMSE 3.695 and 3.708 mN against 3.669; quantizing takes 10 s instead of 7 s).
-CALIBRATION_FRAMES = 1024
 CHECKPOINTS = "checkpoint_*.pt"
 FZ_MAP_PNG = "fz_map.png"
 
@@ -58,17 +53,6 @@ def scene_frames(sensor: SensorDescription, scene_name: str, split: str | None =
     else:
         indices = split_indices(len(scene), scene.seed)[split][:frames]
     return simulate_frames(sensor, scene, indices, progress=progress)
-
-
-def calibration_indices(train_indices: np.ndarray) -> np.ndarray:
-    """`CALIBRATION_FRAMES` of the training frames, spread evenly over the split.
-
-    Not the first ones: a scene opens with frames at rest, and int8 activation ranges calibrated on a sensor
-    at rest clip every press (the first model with 120 rest frames lost 0.7 N in its worst bin that way).
-    """
-    train_indices = np.asarray(train_indices)
-    picks = np.linspace(0, len(train_indices) - 1, min(CALIBRATION_FRAMES, len(train_indices))).round()
-    return train_indices[np.unique(picks.astype(int))]
 
 
 def training_frames(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None,
@@ -95,12 +79,11 @@ def train_model(frames: FrameSet, model_config: ModelConfig, train_config: Train
     return model, results, split
 
 
-def export_all(model: ForceFusionNet, out_dir: Path, calibration: FrameSet) -> dict:
+def export_all(model: ForceFusionNet, out_dir: Path) -> dict:
     """Write the fp32, fp16 and int8 ONNX graphs of `model` into `out_dir`; returns {precision: path}."""
     paths = {"fp32": export_onnx(model, out_dir / ONNX_FILES["fp32"], "fp32"),
              "fp16": export_onnx(model, out_dir / ONNX_FILES["fp16"], "fp16")}
-    paths["int8"] = quantize_int8(paths["fp32"], out_dir / ONNX_FILES["int8"], np.asarray(calibration.images),
-                                  calibration.reference)
+    paths["int8"] = quantize_int8(paths["fp32"], out_dir / ONNX_FILES["int8"])
     return paths
 
 
@@ -134,7 +117,7 @@ def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: 
     model, results, split = train_model(frames, model_config, train_config, out_dir, resume, progress)
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
-    export_all(model, out_dir, frames.subset(calibration_indices(split["train"])))
+    export_all(model, out_dir)
     metrics = record_test_metrics(out_dir, frames.subset(split["test"]), data_source, threads)
     write_json(out_dir / TRAINING_JSON, {
         "train_config": asdict(train_config),
@@ -167,38 +150,34 @@ def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, threa
     return metrics
 
 
-def measure_model_dir(model_dir: str | Path, sensor: SensorDescription, threads: int | None) -> dict:
+def measure_model_dir(model_dir: str | Path, sensor: SensorDescription, threads: int | None) -> tuple[dict, str]:
     """Measure every backend and precision of a model directory again on the test split of its training data and
-    rewrite metrics.json (after an export changed the graphs, their figures are stale). Returns the metrics."""
+    rewrite metrics.json (after an export changed the graphs, their figures are stale). Returns the metrics and
+    what they were measured on."""
     model_dir = Path(model_dir)
     model = load_model(model_dir)
     check_model_fits(model, sensor)
-    test, source, _ = training_split(model_dir, sensor, "test")
-    return record_test_metrics(model_dir, test.select_cameras(model.camera_ids), source, threads)
+    test, source, note = held_out_test_split(model_dir, sensor)
+    metrics = record_test_metrics(model_dir, test.select_cameras(model.camera_ids), source, threads)
+    return metrics, f"the test split of {source}{note}"
 
 
-def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> tuple[dict, str]:
-    """Re-export the ONNX graphs of a model directory from its torch state dict; ({precision: path}, what the
-    int8 graph was calibrated on). `sensor` must be the model's."""
+def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> dict:
+    """Re-export the ONNX graphs of a model directory from its torch state dict; {precision: path}. `sensor` must be
+    the model's."""
     model_dir = Path(model_dir)
     model = load_model(model_dir)
     check_model_fits(model, sensor)
-    calibration, source, note = training_split(model_dir, sensor, "train", calibration_indices)
-    paths = export_all(model, model_dir, calibration.select_cameras(model.camera_ids))
-    return paths, f"the training split of {source}{note}"
+    return export_all(model, model_dir)
 
 
-def training_split(model_dir: Path, sensor: SensorDescription, split: str,
-                   pick: Callable[[np.ndarray], np.ndarray] = lambda indices: indices
-                   ) -> tuple[FrameSet, str, str]:
-    """Frames of one split ("train", "val", "test") of the data a model was trained on, that data ("scene NAME"
-    or "dataset PATH", as training.json says) and a note on where it came from ("" or why the default scene).
+def held_out_test_split(model_dir: Path, sensor: SensorDescription) -> tuple[FrameSet, str, str]:
+    """The test split of the data a model was trained on, that data ("scene NAME" or "dataset PATH", as
+    training.json says) and a note on where it came from ("" or why the default scene).
 
-    The split `train_and_export` made of the data that training.json names (a scene, or a dataset), narrowed by
-    `pick` (export calibrates int8 on `calibration_indices` of the training split, as training did, so that a
-    re-export reproduces the graphs metrics.json has figures of). A model directory without training.json gets
-    the default scene's split; one whose training data cannot be found is refused (ModelFileError), rather than
-    silently given other data.
+    The split `train_and_export` made of the data that training.json names (a scene, or a dataset). A model
+    directory without training.json gets the default scene's split (and says so); one whose training data cannot be
+    found is refused (ModelFileError), rather than silently measured on other data.
     """
     record = model_dir / TRAINING_JSON
     if record.exists():
@@ -213,8 +192,7 @@ def training_split(model_dir: Path, sensor: SensorDescription, split: str,
         source = load_dataset_frames(name, sensor) if kind == "dataset" else load_scene(name, sensor)
     except (OSError, SceneError, DatasetError, DatasetMismatchError) as exc:
         raise ModelFileError(f"{record} says the model was trained on {kind} {name}, which cannot be read here "
-                             f"({exc}); export calibrates int8 on those training frames and measures on their test "
-                             "split") from exc
-    picks = pick(split_indices(min(data.get("frames", len(source)), len(source)), source.seed)[split])
+                             f"({exc}); the figures are measured on its test split") from exc
+    picks = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)["test"]
     frames = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks)
     return frames, f"{kind} {name}", note

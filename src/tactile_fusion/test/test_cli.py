@@ -118,7 +118,7 @@ def test_export_measure_records_the_figures_of_changed_graphs(tiny_model, tmp_pa
     assert sorted(stale) == sorted(before["backends"])  # exported, not measured: every figure is stale
 
     result = run("export", "--model", str(changed), "--measure", "--quiet")
-    assert f"figures written to {changed / METRICS_JSON}" in result.stdout
+    assert f"figures of the test split of scene paper_grid written to {changed / METRICS_JSON}" in result.stdout
     after = json.loads((changed / METRICS_JSON).read_text())
     assert after["data"] == before["data"]  # the same test split: the 12 test frames of the 60 trained on
     assert after["rmse_bin_n"] != before["rmse_bin_n"]
@@ -129,45 +129,45 @@ def test_export_measure_records_the_figures_of_changed_graphs(tiny_model, tmp_pa
 
 
 def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
-    """The tiny model trained on the first 60 frames of paper_grid: a re-export calibrates int8 on the same
-    training frames and writes byte for byte the graphs whose figures metrics.json holds."""
+    """A re-export writes byte for byte the graphs whose figures metrics.json holds (it needs no data: int8 is
+    quantized dynamically)."""
     out, _ = tiny_model
     before = (out / ONNX_FILES["fp32"]).stat().st_mtime_ns
     result = run("export", "--model", str(out), "--quiet")
     assert (out / ONNX_FILES["fp32"]).stat().st_mtime_ns > before
-    assert "int8 calibrated on the training split of scene paper_grid" in result.stdout
+    assert f"int8: {out / ONNX_FILES['int8']}" in result.stdout
     measured = json.loads((out / METRICS_JSON).read_text())["backends"]
     for precision, name in ONNX_FILES.items():
         assert measured[f"onnxruntime_{precision}"]["model_file"] == name
         assert measured[f"onnxruntime_{precision}"]["model_file_sha256"] == file_sha256(out / name), precision
 
 
-def test_export_without_a_training_record_calibrates_on_the_default_scene(tiny_model, tmp_path):
+def test_export_measure_without_a_training_record_measures_the_default_scene_and_says_so(tiny_model, tmp_path):
     out, _ = tiny_model
     bare = tmp_path / "model"
     shutil.copytree(out, bare)
     (bare / TRAINING_JSON).unlink()
-    result = run("export", "--model", str(bare), "--quiet")
-    assert "int8 calibrated on the training split of scene paper_grid (the model directory has no training.json)" \
-        in result.stdout
-    assert (bare / ONNX_FILES["int8"]).is_file()
+    result = run("export", "--model", str(bare), "--measure", "--quiet")
+    assert ("figures of the test split of scene paper_grid (the model directory has no training.json) written to "
+            f"{bare / METRICS_JSON}") in result.stdout
+    assert json.loads((bare / METRICS_JSON).read_text())["data"]["source"] == "scene paper_grid"
 
 
-def test_export_refuses_a_model_whose_training_data_is_gone(tiny_model, tmp_path):
+def test_export_measure_refuses_a_model_whose_training_data_is_gone(tiny_model, tmp_path):
     out, _ = tiny_model
     moved = tmp_path / "model"
     shutil.copytree(out, moved)
     training = json.loads((moved / TRAINING_JSON).read_text())
     training["data"]["source"] = f"dataset {tmp_path / 'gone'}"
     (moved / TRAINING_JSON).write_text(json.dumps(training))
-    before = file_sha256(moved / ONNX_FILES["int8"])
-    result = run("export", "--model", str(moved), "--quiet", check=False)
+    before = file_sha256(moved / METRICS_JSON)
+    result = run("export", "--model", str(moved), "--measure", "--quiet", check=False)
     assert result.returncode == 2
     assert f"says the model was trained on dataset {tmp_path / 'gone'}, which cannot be read here" in result.stderr
-    assert file_sha256(moved / ONNX_FILES["int8"]) == before
+    assert file_sha256(moved / METRICS_JSON) == before  # not measured on other data
 
 
-def test_a_model_trained_on_a_dataset_by_relative_path_exports_from_anywhere(tmp_path):
+def test_a_model_trained_on_a_dataset_by_relative_path_is_measured_from_anywhere(tmp_path):
     from tactile_description import load_sensor
     from tactile_sim import Simulator, load_scene, write_dataset
 
@@ -176,8 +176,8 @@ def test_a_model_trained_on_a_dataset_by_relative_path_exports_from_anywhere(tmp
     run("train", "--dataset", "data", "--epochs", "1", "--head-epochs", "1", "--out", "model", *TINY, cwd=tmp_path)
     model = tmp_path / "model"
     assert json.loads((model / TRAINING_JSON).read_text())["data"]["source"] == f"dataset {tmp_path / 'data'}"
-    result = run("export", "--model", str(model), "--quiet")
-    assert f"int8 calibrated on the training split of dataset {tmp_path / 'data'}" in result.stdout
+    result = run("export", "--model", str(model), "--measure", "--quiet")
+    assert f"figures of the test split of dataset {tmp_path / 'data'} written to" in result.stdout
     measured = json.loads((model / METRICS_JSON).read_text())["backends"]
     assert measured["onnxruntime_int8"]["model_file_sha256"] == file_sha256(model / ONNX_FILES["int8"])
 

@@ -73,17 +73,3 @@ def test_select_cameras_reorders_and_rejects_unknown_ids(frames):
     np.testing.assert_array_equal(picked.reference[0], frames.reference[1])
     with pytest.raises(DatasetMismatchError, match="cam7"):
         frames.select_cameras(("cam7",))
-
-
-def test_int8_calibration_frames_spread_over_the_training_split_not_its_opening_rest_frames(sensor):
-    from tactile_fusion.pipeline import CALIBRATION_FRAMES, calibration_indices
-
-    scene = load_scene("paper_grid", sensor)
-    train = split_indices(len(scene), scene.seed)["train"]
-    picked = calibration_indices(train)
-    assert len(picked) == CALIBRATION_FRAMES and set(picked) <= set(train) and np.all(np.diff(picked) > 0)
-    assert picked[0] == train[0] and picked[-1] == train[-1]
-    rest_frames = 120  # the scene opens with 120 frames at rest: they get no more than their share of the picks
-    share = np.mean(train < rest_frames)
-    assert np.sum(picked < rest_frames) <= np.ceil(share * len(picked)) + 1
-    np.testing.assert_array_equal(calibration_indices(np.array([5, 9])), [5, 9])  # fewer frames than wanted: all
