@@ -143,14 +143,16 @@ def cmd_recalibrate(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from tactile_fusion.pipeline import export_model_dir, measure_model_dir
+    from tactile_fusion.pipeline import export_model_dir, held_out_test_split, measure_model_dir
 
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
+    # With --measure, training data that cannot be read is refused before any graph is rewritten.
+    test_split = held_out_test_split(model_dir, sensor) if args.measure else None
     for precision, path in export_model_dir(model_dir, sensor).items():
         print(f"{precision}: {path}")
-    if args.measure:
-        metrics, measured_on = measure_model_dir(model_dir, sensor, args.threads)
+    if test_split is not None:
+        metrics, measured_on = measure_model_dir(model_dir, test_split, args.threads)
         print(metrics_table({f"{metrics['data']['scene']} test ({b})": m for b, m in metrics["backends"].items()}))
         print(f"figures of {measured_on} written to {model_dir / METRICS_JSON}")
     return 0
@@ -189,8 +191,10 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="then at most this many epochs of the head alone on cached conv features")
     parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per end-to-end step")
     parser.add_argument("--learning-rate", type=float, default=train.learning_rate)
-    parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size, help="frames per head step")
-    parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate)
+    parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size,
+                        help="frames per step of the head phase and of recalibration")
+    parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate,
+                        help="learning rate of the head phase and of recalibration")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

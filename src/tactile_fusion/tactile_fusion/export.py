@@ -72,7 +72,7 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
 
 def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
     """Dynamic int8 quantization of the CNN's fully connected layers (per-channel int8 weights; each call quantizes
-    their input from its own range).
+    their input from its own range, taken over all frames of the call).
 
     Dynamic rather than static (calibrated) quantization, measured on the shipped model (docs/learning.md): the
     ReLU features have no upper bound, so fixed activation ranges clip frames beyond the calibration data (21 mN
@@ -101,16 +101,28 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
         prepared.unlink(missing_ok=True)
     proto = onnx.load(str(int8_path))
     onnx.checker.check_model(proto, full_check=True)
-    if not any(node.op_type in ("MatMul", "Gemm") and node.name.startswith(tuple(fusion)) for node in proto.graph.node):
+    # Checked on the result, by operator type (not by the names the exclusion relied on).
+    head = _after_last_activation(proto.graph.node)
+    if any(node.op_type in INT8_OPS for node in head) or not any(node.op_type in FLOAT_PRODUCTS for node in head):
         int8_path.unlink()
-        raise RuntimeError(f"quantize_int8: ONNX Runtime quantized the fusion layer of {fp32_path} (its node names "
-                           "changed?); it must stay in float")
+        raise RuntimeError(f"quantize_int8: ONNX Runtime quantized the fusion layer of {fp32_path} (did the names "
+                           "of its nodes change?); it must stay in float")
     return int8_path
+
+
+#: Operators of a quantized matrix product, and of a float one.
+INT8_OPS = ("DynamicQuantizeLinear", "MatMulInteger", "QuantizeLinear", "DequantizeLinear", "QLinearMatMul",
+            "MatMulIntegerToFloat", "DynamicQuantizeMatMul")
+FLOAT_PRODUCTS = ("MatMul", "Gemm")
 
 
 def fusion_node_names(path: str | Path) -> list[str]:
     """Names of the graph's nodes after the last activation (the camera features' Sigmoid or Relu): the fusion
     layer, reshape and force scaling."""
-    nodes = onnx.load(str(path)).graph.node
+    return [node.name for node in _after_last_activation(onnx.load(str(path)).graph.node)]
+
+
+def _after_last_activation(nodes) -> list:
+    """The nodes after the last Sigmoid or Relu of a (topologically sorted) graph."""
     last_activation = max(i for i, node in enumerate(nodes) if node.op_type in ("Sigmoid", "Relu"))
-    return [node.name for node in nodes[last_activation + 1:]]
+    return list(nodes[last_activation + 1:])

@@ -10,9 +10,9 @@ with this fit:
 X: (N, C * camera_features + 1) features of the training frames in evaluation mode, with a column of ones for
 the bias (not penalised); Y: (N, rows * cols * 3) normalised forces. The ridge is chosen on the validation
 frames. For a rank-limited fusion layer the solution is projected onto the `rank` leading right singular
-vectors of the centred fitted values X W (reduced-rank regression, Izenman 1975), which is the best rank-r fit;
-the bias lies outside the rank (the layer adds it after the factored matrix) and is refitted for the projected
-matrix.
+vectors of the centred fitted values X W (reduced-rank regression, Izenman 1975: the best rank-r fit without a
+ridge, an approximation of the best rank-r ridge fit); the bias lies outside the rank (the layer adds it after the
+factored matrix) and is refitted for the projected matrix.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from tactile_fusion.sources import normalised_rmse
 
 #: Candidate ridges, relative to the number of training frames; features are of order 1 (sigmoid: in (0, 1), ReLU:
 #: >= 0 after batch normalisation). The large ones matter
-#: when few frames are available (recalibration with 10 % of the data: 204 frames for 1201 unknowns per output).
+#: when few frames are available (recalibration with 10 % of the data: 815 frames for 1201 unknowns per output).
 RIDGES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0)
 
 
@@ -80,6 +80,8 @@ def _reduce_rank(weights: torch.Tensor, x: torch.Tensor, y: torch.Tensor, rank: 
     fitted = x @ matrix
     _, _, vt = torch.linalg.svd(fitted - fitted.mean(0), full_matrices=False)
     basis = vt[:rank]
+    if len(basis) < rank:  # fewer frames than the rank: the directions the data do not reach get zero weight
+        basis = torch.cat([basis, torch.zeros(rank - len(basis), basis.shape[1], dtype=basis.dtype)])
     matrix = matrix @ basis.T @ basis
     bias = y.mean(0) - x.mean(0) @ matrix
     return torch.cat([matrix, bias[None]]), basis

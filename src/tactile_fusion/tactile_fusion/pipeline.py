@@ -150,14 +150,14 @@ def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, threa
     return metrics
 
 
-def measure_model_dir(model_dir: str | Path, sensor: SensorDescription, threads: int | None) -> tuple[dict, str]:
-    """Measure every backend and precision of a model directory again on the test split of its training data and
-    rewrite metrics.json (after an export changed the graphs, their figures are stale). Returns the metrics and
-    what they were measured on."""
+def measure_model_dir(model_dir: str | Path, test_split: tuple[FrameSet, str, str], threads: int | None
+                      ) -> tuple[dict, str]:
+    """Measure every backend and precision of a model directory again on `test_split` (`held_out_test_split`: the
+    test split of its training data) and rewrite metrics.json (after an export changed the graphs, their figures
+    are stale). Returns the metrics and what they were measured on."""
     model_dir = Path(model_dir)
+    test, source, note = test_split
     model = load_model(model_dir)
-    check_model_fits(model, sensor)
-    test, source, note = held_out_test_split(model_dir, sensor)
     metrics = record_test_metrics(model_dir, test.select_cameras(model.camera_ids), source, threads)
     return metrics, f"the test split of {source}{note}"
 

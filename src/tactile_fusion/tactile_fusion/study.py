@@ -40,6 +40,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     if not fractions or any(not 0.0 < f <= 1.0 for f in fractions):
         raise ValueError(f"--fractions must be numbers in (0, 1], got {fractions}")
     fractions = sorted(fractions)
+    train_config.recalibration_phase()  # settings that cannot recalibrate fail now, not after two trainings
     all_frames = training_frames(sensor, scene, dataset, frames, progress)
     base_ids = tuple(c for c in sensor.camera_ids if c != added_camera)
     split = split_indices(len(all_frames), all_frames.seed)

@@ -33,8 +33,9 @@ class TrainConfig:
     Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully
     connected layers and fusion) alone for up to `head_epochs` on cached conv features (an epoch costs about a
     tenth of an end-to-end one); then the exact least-squares fit of the linear fusion layer (least_squares.py).
-    Each gradient phase stops early after `patience` epochs without a better validation RMSE.
-    Modular recalibration (recalibration.py) is a head phase as well: `recalibration_phase`.
+    The end-to-end phase stops early after `patience` epochs without a better validation RMSE; the head phase runs
+    all its epochs (`head_phase`). Modular recalibration (recalibration.py) trains like the head phase:
+    `recalibration_phase`.
     """
 
     max_epochs: int = 26
@@ -78,7 +79,8 @@ class TrainConfig:
         16-frame batches at 2e-3, 26 epochs took 184 s for 4.19 mN per bin; with the head phase's 64 frames at 4e-3,
         80 s for 4.13 mN.
         """
-        return replace(self.head_phase(), max_epochs=self.recalibration_epochs, patience=self.recalibration_epochs)
+        return replace(self, max_epochs=self.recalibration_epochs, learning_rate=self.head_learning_rate,
+                       batch_size=self.head_batch_size, patience=self.recalibration_epochs, head_epochs=0)
 
 
 def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
@@ -263,7 +265,8 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     if checkpoint.get("model_config") != model.config.to_dict():
         raise ValueError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, not "
                          f"{model.config.to_dict()}: resume with the same model settings or delete the checkpoint")
-    if checkpoint["train_config"] != asdict(config):
+    # Settings added since the checkpoint was written count as their defaults (they did not exist then).
+    if {**asdict(TrainConfig()), **checkpoint["train_config"]} != asdict(config):
         raise ValueError(f"checkpoint {path} was written with training settings {checkpoint['train_config']}, "
                          f"not {asdict(config)}: resume with the same settings or delete the checkpoint")
     try:

@@ -80,6 +80,17 @@ def test_int8_keeps_the_fusion_layer_in_float_and_stays_close(model_dir):
     assert np.abs(half - fp32).max() <= 0.005 * np.abs(fp32).max()
 
 
+def test_int8_export_refuses_a_graph_whose_fusion_layer_got_quantized(model_dir, tmp_path, monkeypatch):
+    """If the exclusion missed the fusion layer (ONNX Runtime renamed its nodes), no int8 graph is written."""
+    import tactile_fusion.export as export
+
+    out, _ = model_dir
+    monkeypatch.setattr(export, "fusion_node_names", lambda path: [])  # excludes nothing
+    with pytest.raises(RuntimeError, match="quantized the fusion layer"):
+        quantize_int8(out / ONNX_FILES["fp32"], tmp_path / "int8.onnx")
+    assert not (tmp_path / "int8.onnx").exists()
+
+
 def test_float_grey_levels_give_the_uint8_result_and_camera_order_can_be_named(model_dir):
     out, frames = model_dir
     predictor = load_predictor(out)

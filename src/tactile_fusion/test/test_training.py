@@ -89,6 +89,27 @@ def test_resuming_with_other_settings_is_refused(frames, tiny_config, tmp_path):
         trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=4), checkpoint_path=checkpoint, resume=True)
 
 
+def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(frames, tiny_config, tmp_path):
+    import torch
+
+    config = TrainConfig(max_epochs=2, batch_size=8)
+    checkpoint = tmp_path / "checkpoint.pt"
+
+    def interrupt(epoch, record):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        trained(frames, tiny_config, config, checkpoint_path=checkpoint, on_epoch_end=interrupt)
+    saved = torch.load(checkpoint, weights_only=False)
+    del saved["train_config"]["recalibration_epochs"]  # as written before that setting was added
+    torch.save(saved, checkpoint)
+    _, result = trained(frames, tiny_config, config, checkpoint_path=checkpoint, resume=True)
+    assert result.epochs_run == 2
+    with pytest.raises(ValueError, match="same settings"):
+        trained(frames, tiny_config, dataclasses.replace(config, recalibration_epochs=3), checkpoint_path=checkpoint,
+                resume=True)
+
+
 def test_resuming_a_model_with_another_activation_is_refused(frames, tiny_config, tmp_path):
     """Same weight shapes, another function: load_state_dict alone would accept the checkpoint."""
     checkpoint = tmp_path / "checkpoint.pt"
@@ -173,5 +194,6 @@ def test_recalibration_phase_is_a_head_phase_of_its_own_length():
     recalibration = config.recalibration_phase()
     assert (recalibration.max_epochs, recalibration.learning_rate, recalibration.batch_size) == (11, 4e-3, 64)
     assert recalibration.patience == 11 and recalibration.head_epochs == 0
+    assert TrainConfig(head_epochs=0, recalibration_epochs=5).recalibration_phase().max_epochs == 5
     with pytest.raises(ValueError, match="recalibration_epochs"):
         TrainConfig(recalibration_epochs=0)
