@@ -56,6 +56,17 @@ def test_least_squares_fusion_fit_is_exact_for_a_linear_target(frames, tiny_conf
     assert normalised_rmse(model, sources[1]) < 1e-5 * before  # float32 weights: about 3e-6 of it
 
 
+def test_rank_limited_fit_with_fewer_frames_than_the_rank_stays_finite(frames, tiny_config):
+    from dataclasses import replace
+
+    model = model_for(frames, replace(tiny_config, fusion_rank=20)).eval()
+    train, val = splits(frames)
+    few = [CachedSource(model, train.subset(np.arange(8)), "trunk"), CachedSource(model, val, "trunk")]
+    report = fit_fusion(model, *few, ridges=(1e-3,))
+    assert np.isfinite(report["val_rmse"]["0.001"])
+    assert all(torch.isfinite(p).all() for p in model.fusion.parameters())
+
+
 def test_least_squares_keeps_the_layer_when_no_ridge_helps(frames, tiny_config):
     model = model_for(frames, tiny_config).eval()
     train, val = splits(frames)
