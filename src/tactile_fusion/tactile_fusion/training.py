@@ -67,8 +67,7 @@ class TrainConfig:
         more than `patience` epochs; early stopping would end the phase there and keep the end-to-end weights
         (measured: a 60-epoch head phase stopped after 12 epochs). The best epoch is still the one kept.
         """
-        return replace(self, max_epochs=self.head_epochs, learning_rate=self.head_learning_rate,
-                       batch_size=self.head_batch_size, patience=max(self.head_epochs, 1), head_epochs=0)
+        return self._on_cached_features(self.head_epochs)
 
     def recalibration_phase(self) -> TrainConfig:
         """The settings of modular recalibration: the head phase's batch size and learning rate for
@@ -79,8 +78,12 @@ class TrainConfig:
         16-frame batches at 2e-3, 26 epochs took 184 s for 4.19 mN per bin; with the head phase's 64 frames at 4e-3,
         80 s for 4.13 mN.
         """
-        return replace(self, max_epochs=self.recalibration_epochs, learning_rate=self.head_learning_rate,
-                       batch_size=self.head_batch_size, patience=self.recalibration_epochs, head_epochs=0)
+        return self._on_cached_features(self.recalibration_epochs)
+
+    def _on_cached_features(self, epochs: int) -> TrainConfig:
+        """`epochs` epochs, all run, at the head settings: a phase that trains layers on cached features."""
+        return replace(self, max_epochs=epochs, learning_rate=self.head_learning_rate,
+                       batch_size=self.head_batch_size, patience=max(epochs, 1), head_epochs=0)
 
 
 def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
