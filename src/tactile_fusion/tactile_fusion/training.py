@@ -36,19 +36,22 @@ class TrainConfig:
     The end-to-end phase stops early after `patience` epochs without a better validation RMSE; the head phase runs
     all its epochs (`head_phase`). Modular recalibration (recalibration.py) trains like the head phase:
     `recalibration_phase`.
+
+    The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 13 x 1017 end-to-end
+    steps): on the former 24 x 24 grid, half the frames, 26, 60 and 26 epochs made the same number of steps.
     """
 
-    max_epochs: int = 26
+    max_epochs: int = 13
     batch_size: int = 16          # frames per step; each brings all its cameras through the CNN
     learning_rate: float = 2e-3
-    patience: int = 12            # early stopping: epochs without a better validation RMSE
+    patience: int = 6             # early stopping: epochs without a better validation RMSE
     min_learning_rate: float = 1e-5  # the learning rate follows a cosine from learning_rate down to this
     seed: int = 0
     loss_eps: float = 1e-8        # RMSE = sqrt(MSE + eps): finite gradient at zero error
-    head_epochs: int = 60         # second phase: conv trunk frozen, head trained on cached features
+    head_epochs: int = 30         # second phase: conv trunk frozen, head trained on cached features
     head_learning_rate: float = 4e-3
     head_batch_size: int = 64     # frames per head step: a head step is cheap, larger batches use the cores better
-    recalibration_epochs: int = 26  # modular recalibration: epochs of the last layers on cached features
+    recalibration_epochs: int = 13  # modular recalibration: epochs of the last layers on cached features
 
     def __post_init__(self):
         if self.head_epochs < 0:
@@ -74,9 +77,10 @@ class TrainConfig:
         `recalibration_epochs`, all of them run (the best epoch is kept).
 
         Recalibration trains the same kind of layers on cached features as the head phase. Measured on the
-        recalibration study's 3-camera base, all the training data (docs/learning.md): with the end-to-end phase's
-        16-frame batches at 2e-3, 26 epochs took 184 s for 4.19 mN per bin; with the head phase's 64 frames at 4e-3,
-        80 s for 4.13 mN.
+        recalibration study's 3-camera base, all the training data of the former 24 x 24 default grid
+        (docs/learning.md): with the end-to-end phase's 16-frame batches at 2e-3, 26 epochs took 184 s for 4.19 mN
+        per bin; with the head phase's 64 frames at 4e-3, 80 s for 4.13 mN. The default of 13 epochs on the twice
+        as large 34 x 34 grid makes the same number of steps.
         """
         return self._on_cached_features(self.recalibration_epochs)
 
