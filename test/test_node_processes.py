@@ -72,6 +72,26 @@ def test_a_process_that_ignores_ctrl_c_is_killed_with_its_stacks_in_its_log(tmp_
     assert STACK_HEADER in log and "in <module>" in log, log
 
 
+def test_nodes_are_stopped_one_after_the_other(tmp_path):
+    """A node gets its SIGINT only once the one before it has exited (Fast DDS's teardown deadlock, docs/nodes.md)."""
+    slow_exit = ("import signal, sys, time\n"
+                 "def stop(*_):\n"
+                 "    print('interrupted', time.monotonic(), flush=True); time.sleep(0.5)\n"
+                 "    print('exiting', time.monotonic(), flush=True); sys.exit(0)\n"
+                 "signal.signal(signal.SIGINT, stop); print('ready', flush=True)\n"
+                 "while True: time.sleep(0.01)\n")
+    logs = [tmp_path / f"node{i}.log" for i in range(2)]
+    processes = []
+    for log_path in logs:
+        with open(log_path, "w") as log:
+            processes.append(subprocess.Popen([sys.executable, "-c", slow_exit], stdout=log, stderr=subprocess.STDOUT))
+    for log_path in logs:
+        assert "ready" in wait_for_text(log_path, "ready", timeout_s=10.0)
+    assert stop_nodes(processes) == [0, 0]
+    times = [{line.split()[0]: float(line.split()[1]) for line in path.read_text().splitlines()[1:]} for path in logs]
+    assert times[0]["exiting"] <= times[1]["interrupted"], times
+
+
 def running(pid: int) -> bool:
     """Whether process `pid` exists and is not a zombie (a container's init may never reap it)."""
     try:

@@ -69,28 +69,33 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
 
 
 def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:
-    """Interrupt every node (SIGINT, as Ctrl-C), kill those that do not exit in time; their exit codes.
+    """Interrupt the nodes (SIGINT, as Ctrl-C) one after the other, kill one that does not exit in time; their exit
+    codes.
 
-    SIGINT is repeated every `SIGINT_REPEAT_S` to the nodes still running: a node started with SIGINT ignored (what a
+    One at a time: Fast DDS can deadlock while a node deletes its participant if another node is leaving at the
+    same moment (docs/nodes.md; the node then ends itself with exit code 1 after TEARDOWN_TIMEOUT_S). Stopped in
+    turn, a node has seen the others leave before its own teardown begins.
+
+    SIGINT is repeated every `SIGINT_REPEAT_S` while the node runs: a node started with SIGINT ignored (what a
     background job of a non-interactive shell inherits) loses a SIGINT that arrives while it imports, before
-    `rclpy.init()` installs rclpy's handler, and would otherwise spin until killed. A node that is killed first
-    gets SIGUSR1, which makes it print its threads' stacks into its log (tactile_conversions.node_main), so that
-    the log says where it was stuck.
+    `rclpy.init()` installs rclpy's handler, and would otherwise spin until killed. A node still running
+    `timeout_s` after its first SIGINT gets SIGUSR1, which makes it print its threads' stacks into its log
+    (tactile_conversions.node_main), so that the log says where it was stuck, and is then killed.
     """
+    for process in processes:
+        _stop_node(process, timeout_s)
+    return [process.returncode for process in processes]
+
+
+def _stop_node(process: subprocess.Popen, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
-    running = [p for p in processes if p.poll() is None]
-    while running and time.monotonic() < deadline:
-        for process in running:
-            process.send_signal(signal.SIGINT)
+    while process.poll() is None and time.monotonic() < deadline:
+        process.send_signal(signal.SIGINT)
         repeat_at = min(time.monotonic() + SIGINT_REPEAT_S, deadline)
-        while running and time.monotonic() < repeat_at:
+        while process.poll() is None and time.monotonic() < repeat_at:
             time.sleep(0.02)
-            running = [p for p in running if p.poll() is None]
-    for process in running:
+    if process.poll() is None:
         process.send_signal(signal.SIGUSR1)
-    if running:
         time.sleep(STACK_DUMP_S)
-    for process in running:
         process.kill()
         process.wait()
-    return [process.returncode for process in processes]

@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import faulthandler
 import signal
+import traceback
 from collections.abc import Callable
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+
+#: How long the middleware may take to destroy the node and the context once the node has stopped. Fast DDS 3.2.3
+#: (the newest wheel) can deadlock while it deletes the participant if a discovery message about a peer that is
+#: leaving arrives at that moment (measured: 4 of 498 starts and stops of two camera nodes stopped together;
+#: docs/nodes.md). Below the 5 s after which `ros2 launch` escalates to SIGTERM and SIGKILL.
+TEARDOWN_TIMEOUT_S = 3.0
 
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> None:
@@ -16,17 +23,24 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
 
     rclpy's signal handler shuts the ROS context down at once, from another thread, wherever the node is: in
     its constructor or in a callback a `create_*` or `publish` then fails ("context is invalid"). Such an
-    error after shutdown was requested is the shutdown itself, so it ends the node cleanly (exit code 0).
+    error after shutdown was requested is the shutdown itself, so it ends the node cleanly (exit code 0). Any
+    other error is printed with its traceback and ends the process with exit code 1 (SystemExit(1)).
 
     Once the node is shutting down, SIGINT is ignored (and stays so: the process is ending), so that a repeated
     Ctrl-C does not interrupt the shutdown.
 
     SIGUSR1 (`kill -USR1 <pid>`) prints the stack of every thread to stderr and the node keeps running: how to
     see where a node that does not stop is stuck.
+
+    If destroying the node and the context takes longer than `TEARDOWN_TIMEOUT_S`, faulthandler prints
+    "Timeout" and every thread's stack to stderr and ends the process with exit code 1. It runs in a thread of
+    its own without the GIL, which the middleware's deadlock keeps (a Python thread could not step in). The error
+    that ended the node, if any, has been printed before the teardown began.
     """
     faulthandler.register(signal.SIGUSR1)
     rclpy.init(args=args)
     node = None
+    failed = False
     try:
         node = make_node()
         rclpy.spin(node)
@@ -34,12 +48,17 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
         pass
     except Exception:
         if rclpy.ok():
-            raise
+            traceback.print_exc()
+            failed = True
     finally:
         # A repeated Ctrl-C (`stop_nodes` repeats it) must not interrupt the shutdown itself: once rclpy's handler
         # is gone (try_shutdown restores Python's), it would raise KeyboardInterrupt here and end the node with -2.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT_S, exit=True)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if failed:
+        raise SystemExit(1)

@@ -1,13 +1,16 @@
 """run_node: how a node's process ends (real rclpy, no DDS traffic)."""
 
 import signal
+import subprocess
+import sys
+import time
 
 import pytest
 import rclpy
 from rclpy.node import Node
 from std_msgs.msg import Header
 
-from tactile_conversions.node_main import run_node
+from tactile_conversions.node_main import TEARDOWN_TIMEOUT_S, run_node
 
 
 @pytest.fixture(autouse=True)
@@ -40,10 +43,55 @@ def test_an_error_after_shutdown_was_requested_ends_the_node_cleanly():
     assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
 
 
-def test_an_error_while_ros_runs_is_raised_and_ros_is_shut_down():
+def test_an_error_while_ros_runs_is_printed_ros_is_shut_down_and_the_exit_code_is_1(capfd):
     def broken_node():
         raise ValueError("bad parameter")
 
-    with pytest.raises(ValueError, match="bad parameter"):
+    with pytest.raises(SystemExit) as ended:
         run_node(broken_node)
+    assert ended.value.code == 1
+    assert "ValueError: bad parameter" in capfd.readouterr().err
     assert not rclpy.ok()
+
+
+#: A node process whose teardown hangs, as the middleware's does when Fast DDS deadlocks deleting the participant.
+HANGING_TEARDOWN = """
+import sys, time
+from rclpy.node import Node
+from tactile_conversions.node_main import run_node
+
+class HangsOnDestroy(Node):
+    def __init__(self):
+        super().__init__("hangs_on_destroy")
+        self.create_timer(0.05, self.started)
+
+    def started(self):
+        print("spinning", flush=True)
+        if sys.argv[1] == "error":
+            raise ValueError("a broken camera frame")
+
+    def destroy_node(self):
+        time.sleep(60)
+
+run_node(HangsOnDestroy)
+"""
+
+
+@pytest.mark.parametrize("ending", ["ctrl-c", "error"])
+def test_a_hanging_teardown_ends_the_process_after_the_timeout_with_exit_code_1_and_the_stacks(tmp_path, ending):
+    script = tmp_path / "node.py"
+    script.write_text(HANGING_TEARDOWN)
+    process = subprocess.Popen([sys.executable, str(script), ending], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    try:
+        assert process.stdout.readline() == "spinning\n"
+        if ending == "ctrl-c":
+            process.send_signal(signal.SIGINT)
+        stopping = time.monotonic()
+        _, stderr = process.communicate(timeout=TEARDOWN_TIMEOUT_S + 20)
+    finally:
+        process.kill()
+    assert process.returncode == 1, stderr
+    assert time.monotonic() - stopping > TEARDOWN_TIMEOUT_S - 0.5, stderr  # the teardown got its time first
+    assert "Timeout (0:00:03)!" in stderr and "in destroy_node" in stderr  # where it hung
+    assert ("ValueError: a broken camera frame" in stderr) == (ending == "error")  # the error is not lost
