@@ -74,13 +74,15 @@ def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> li
 
     One at a time: Fast DDS can deadlock while a node deletes its participant if another node is leaving at the
     same moment (docs/nodes.md; the node then ends itself with exit code 1 after TEARDOWN_TIMEOUT_S). Stopped in
-    turn, a node has seen the others leave before its own teardown begins.
+    turn, a node has seen the others leave before its own teardown begins. That holds only where this function
+    sends the first signal: a Ctrl-C in the terminal reaches every node of the foreground process group at once.
 
     SIGINT is repeated every `SIGINT_REPEAT_S` while the node runs: a node started with SIGINT ignored (what a
     background job of a non-interactive shell inherits) loses a SIGINT that arrives while it imports, before
     `rclpy.init()` installs rclpy's handler, and would otherwise spin until killed. A node still running
-    `timeout_s` after its first SIGINT gets SIGUSR1, which makes it print its threads' stacks into its log
-    (tactile_conversions.node_main), so that the log says where it was stuck, and is then killed.
+    `timeout_s` after its first SIGINT (the timeout is per node) gets SIGUSR1, which makes it print its threads'
+    stacks into its log (tactile_conversions.node_main), so that the log says where it was stuck, and is then
+    killed.
     """
     for process in processes:
         _stop_node(process, timeout_s)

@@ -55,10 +55,12 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
         # is gone (try_shutdown restores Python's), it would raise KeyboardInterrupt here and end the node with -2.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT_S, exit=True)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        faulthandler.cancel_dump_traceback_later()
+        try:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            faulthandler.cancel_dump_traceback_later()  # also when the teardown raised: never exit later
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     if failed:
         raise SystemExit(1)

@@ -74,10 +74,11 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
     """Dynamic int8 quantization of the CNN's fully connected layers (per-channel int8 weights; each call quantizes
     their input from its own range, taken over all frames of the call).
 
-    Dynamic rather than static (calibrated) quantization, measured on the shipped model (docs/learning.md): the
-    ReLU features have no upper bound, so fixed activation ranges clip frames beyond the calibration data (21 mN
-    in the worst test bin with 1024 calibration frames, 77 mN with 64); with ranges taken per call it is 8.9 mN
-    (per-bin Fz RMSE 3.672 against 3.708 mN, float32 3.669), at the same speed, and export needs no training data.
+    Dynamic rather than static (calibrated) quantization, measured on the previous shipped model (24 x 24 grid;
+    docs/learning.md): the ReLU features have no upper bound, so fixed activation ranges clip frames beyond the
+    calibration data (21 mN in the worst test bin with 1024 calibration frames, 77 mN with 64); with ranges taken
+    per call it was 8.9 mN (per-bin Fz RMSE 3.672 against 3.708 mN, float32 3.669), at the same speed, and export
+    needs no training data.
     What stays in float, and why:
     - the fusion layer (the regression head, the MatMul/Gemm nodes after the last activation) and the final
       scaling: int8 steps of a head whose outputs span four orders of magnitude (most bins ~0, peaks ~0.5 N)
