@@ -47,10 +47,23 @@ def _model_config(args) -> ModelConfig:
                        feature_activation=args.feature_activation)
 
 
+class SettingsError(ValueError):
+    """A training or model setting out of its range (the message names it)."""
+
+
+def _settings(args, **train_overrides) -> tuple[ModelConfig, TrainConfig]:
+    """The model and training settings of `train` and `recalibrate`, checked before any frame is simulated."""
+    try:
+        return _model_config(args), replace(_train_config(args), **train_overrides)
+    except ValueError as exc:
+        raise SettingsError(str(exc)) from exc
+
+
 def _train_config(args) -> TrainConfig:
     return TrainConfig(max_epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                        patience=args.patience, seed=args.seed, head_epochs=args.head_epochs,
-                       head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate)
+                       head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
+                       head_dropout=args.head_dropout)
 
 
 def cmd_train(args) -> int:
@@ -59,13 +72,14 @@ def cmd_train(args) -> int:
     _threads(args)
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
+    model_config, train_config = _settings(args)
     frames = training_frames(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     if args.dataset:
         source = f"dataset {Path(args.dataset).resolve()}"
     else:
         source = f"scene {Path(args.scene).resolve() if Path(args.scene).is_file() else args.scene}"
-    metrics = train_and_export(sensor, frames, _model_config(args), _train_config(args), args.out, args.resume,
+    metrics = train_and_export(sensor, frames, model_config, train_config, args.out, args.resume,
                                progress=not args.quiet, threads=args.threads, data_source=source)
     print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
@@ -124,11 +138,10 @@ def cmd_recalibrate(args) -> int:
     _threads(args)
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
+    model_config, train_config = _settings(args, recalibration_epochs=args.recalibration_epochs)
     fractions = [float(f) for f in args.fractions.split(",")]
     report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, args.add_camera, fractions,
-                                     _model_config(args),
-                                     replace(_train_config(args), recalibration_epochs=args.recalibration_epochs),
-                                     Path(args.out),
+                                     model_config, train_config, Path(args.out),
                                      progress=not (args.json or args.quiet))
     if args.json:
         print(json.dumps(report))
@@ -198,6 +211,10 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="frames per step of the head phase and of recalibration")
     parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate,
                         help="learning rate of the head phase and of recalibration")
+    parser.add_argument("--head-dropout", type=float, default=train.head_dropout,
+                        help="dropout rate of the fully connected layers in the head phase (default: the model's, "
+                        "0.1, as in the end-to-end phase and recalibration; 0 fits the training conditions closer "
+                        "and noisier or blurred images worse, see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "
@@ -271,7 +288,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, SceneError, InputError) as exc:
+    except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, SceneError, InputError,
+            SettingsError) as exc:
         print(f"tactile-fusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

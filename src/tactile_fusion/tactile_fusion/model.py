@@ -138,6 +138,14 @@ class CameraCNN(nn.Module):
         self.last_layer = FeatureLayer(config.hidden_features, config.camera_features, config.dropout,
                                        config.feature_activation)
 
+    def set_dropout(self, rate: float) -> float:
+        """Set the dropout rate of the fully connected layers (both alike); returns the rate they had."""
+        if not 0.0 <= rate < 1.0:
+            raise ValueError(f"CameraCNN.set_dropout: rate must be in [0, 1), got {rate}")
+        previous = self.first_layer.dropout.p
+        self.first_layer.dropout.p = self.last_layer.dropout.p = rate
+        return previous
+
     def hidden(self, difference: torch.Tensor) -> torch.Tensor:
         """(N, 1, H, W) difference images -> (N, hidden_features): everything before `last_layer`."""
         return self.first_layer(self.conv_features(difference))

@@ -209,6 +209,18 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     assert "cameras" in result.stderr and "regenerate" in result.stderr
 
 
+@pytest.mark.parametrize("command, setting, message", [
+    ("train", ["--head-dropout", "1.5"], "head_dropout must be in [0, 1)"),
+    ("train", ["--epochs", "0"], "max_epochs must be >= 1"),
+    ("recalibrate", ["--recalibration-epochs", "0"], "recalibration_epochs must be >= 1"),
+])
+def test_a_setting_out_of_range_is_refused_before_any_work(tmp_path, command, setting, message):
+    result = run(command, *setting, "--frames", "30", "--out", str(tmp_path / "out"), *TINY, check=False)
+    assert result.returncode == 2
+    assert f"tactile-fusion {command}: error: TrainConfig.{message}" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "out").exists()
+
+
 def test_a_model_for_another_sensor_is_refused(tiny_model):
     out, _ = tiny_model
     result = run("eval", "--model", str(out), "--sensor", str(CONFIG / "skin_3x3.yaml"), "--frames", "2",

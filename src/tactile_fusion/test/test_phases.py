@@ -1,5 +1,7 @@
 """The training phases after end-to-end: head on cached features, least-squares fusion fit, recalibration."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -39,8 +41,6 @@ def test_cached_source_predicts_what_the_whole_network_predicts(frames, tiny_con
 def test_least_squares_fusion_fit_is_exact_for_a_linear_target(frames, tiny_config, rank):
     """Targets that are an exact linear map (of rank 2, plus a bias) of the model's own features are fitted
     exactly."""
-    from dataclasses import replace
-
     model = model_for(frames, replace(tiny_config, fusion_rank=rank)).eval()
     train, val = splits(frames)
     teacher = model_for(frames, replace(tiny_config, fusion_rank=2), seed=1).eval()
@@ -57,8 +57,6 @@ def test_least_squares_fusion_fit_is_exact_for_a_linear_target(frames, tiny_conf
 
 
 def test_rank_limited_fit_with_fewer_frames_than_the_rank_stays_finite(frames, tiny_config):
-    from dataclasses import replace
-
     model = model_for(frames, replace(tiny_config, fusion_rank=20)).eval()
     train, val = splits(frames)
     few = [CachedSource(model, train.subset(np.arange(8)), "trunk"), CachedSource(model, val, "trunk")]
@@ -105,6 +103,34 @@ def test_train_phases_run_head_and_fusion_fit_and_resume_in_the_head_phase(frame
     train_phases(resumed, train, val, config, tmp_path, resume=True)
     for key, value in straight.state_dict().items():
         assert torch.equal(value, resumed.state_dict()[key]), key
+
+
+def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(frames, tiny_config):
+    train, val = splits(frames)
+    model = model_for(frames, tiny_config)
+    rates = []
+
+    def record_rates(epoch, record):
+        rates.append((model.cnn.first_layer.dropout.p, model.cnn.last_layer.dropout.p))
+
+    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, head_dropout=0.3)
+    train_phases(model, train, val, config, on_epoch_end=record_rates)
+    assert rates == [(0.1, 0.1), (0.3, 0.3), (0.3, 0.3)]
+    train_phases(model, train, val, replace(config, head_dropout=None), on_epoch_end=record_rates)
+    assert rates[3:] == [(0.1, 0.1)] * 3  # the default: the model's rate throughout
+    assert model.cnn.set_dropout(0.2) == 0.1  # restored after the phase
+
+    def interrupt_in_head(epoch, record):
+        if model.cnn.first_layer.dropout.p == 0.3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):  # ... and when the phase is interrupted
+        train_phases(model, train, val, config, on_epoch_end=interrupt_in_head)
+    assert model.cnn.first_layer.dropout.p == model.cnn.last_layer.dropout.p == 0.2
+    with pytest.raises(ValueError, match="rate must be in"):
+        model.cnn.set_dropout(1.0)
+    with pytest.raises(ValueError, match="head_dropout"):
+        TrainConfig(head_dropout=-0.1)
 
 
 def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_train(frames, tiny_config):
