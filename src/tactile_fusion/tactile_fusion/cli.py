@@ -63,7 +63,7 @@ def _train_config(args) -> TrainConfig:
     return TrainConfig(max_epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                        patience=args.patience, seed=args.seed, head_epochs=args.head_epochs,
                        head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
-                       head_dropout=args.head_dropout)
+                       head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma)
 
 
 def cmd_train(args) -> int:
@@ -215,6 +215,11 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="dropout rate of the fully connected layers in the head phase (default: the model's, "
                         "0.1, as in the end-to-end phase and recalibration; 0 fits the training conditions closer "
                         "and noisier or blurred images worse, see docs/learning.md)")
+    parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
+                        help="extra sensor noise for the head phase: each training frame gets Gaussian noise of a "
+                        "standard deviation drawn from [0, this] grey levels before its conv features are cached "
+                        "(default %(default)s: none; helps with noisy cameras, not with blurred ones, see "
+                        "docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

@@ -6,6 +6,8 @@
   modular recalibration (trunk and first fully connected layer frozen, recalibration.py). Running the frozen
   part in every step would give the same numbers (frozen batch norm uses its running statistics in both
   cases; the dropout of a cached stage is applied to the cached features in training mode), only slower.
+  Optionally the frames get extra sensor noise before their features are cached (`extra_noise_sigma`): the head
+  then learns from features of noisier images than the conv trunk was trained on (docs/learning.md).
 """
 
 from __future__ import annotations
@@ -49,9 +51,12 @@ class CachedSource:
     """Frames as the cached output of the model's front part up to `cut` ("trunk" or "hidden").
 
     The front part must stay frozen while this source is used (the caller sets requires_grad False on it).
+    extra_noise_sigma: if > 0, each frame gets Gaussian noise of a standard deviation drawn uniformly from
+    [0, extra_noise_sigma] grey levels (seeded by `seed`) on top of its own before it goes through the front part.
     """
 
-    def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, batch_size: int = 32):
+    def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, batch_size: int = 32,
+                 extra_noise_sigma: float = 0.0, seed: int = 0):
         if cut not in CUTS:
             raise ValueError(f"CachedSource: cut must be one of {CUTS}, got {cut!r}")
         self.cut = cut
@@ -61,8 +66,10 @@ class CachedSource:
         model.eval()
         with torch.no_grad():
             for start in range(0, len(frames), batch_size):
-                difference = difference_images(torch.from_numpy(np.asarray(frames.images[start:start + batch_size])),
-                                               reference)
+                images = np.asarray(frames.images[start:start + batch_size])
+                if extra_noise_sigma > 0:
+                    images = with_extra_noise(images, extra_noise_sigma, np.random.default_rng([seed, start]))
+                difference = difference_images(torch.from_numpy(images), reference)
                 b, c, h, w = difference.shape
                 x = model.cnn.conv_features(difference.reshape(b * c, 1, h, w))
                 if cut == "hidden":
@@ -87,6 +94,14 @@ class CachedSource:
 
     def target(self, indices: np.ndarray) -> torch.Tensor:
         return self.targets[np.sort(indices)] / self.force_scale_n
+
+
+def with_extra_noise(images: np.ndarray, max_sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """(N, C, H, W) uint8 frames plus Gaussian noise, one standard deviation per frame drawn from [0, max_sigma]
+    grey levels, rounded and clipped to uint8."""
+    sigma = rng.uniform(0.0, max_sigma, len(images)).astype(np.float32)[:, None, None, None]
+    noisy = images.astype(np.float32) + rng.standard_normal(images.shape, dtype=np.float32) * sigma
+    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 
 
 @torch.no_grad()

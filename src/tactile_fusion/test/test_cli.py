@@ -212,6 +212,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
 @pytest.mark.parametrize("command, setting, message", [
     ("train", ["--head-dropout", "1.5"], "head_dropout must be in [0, 1)"),
     ("train", ["--epochs", "0"], "max_epochs must be >= 1"),
+    ("train", ["--head-noise-sigma", "-1"], "head_noise_sigma must be in [0, 255]"),
     ("recalibrate", ["--recalibration-epochs", "0"], "recalibration_epochs must be >= 1"),
 ])
 def test_a_setting_out_of_range_is_refused_before_any_work(tmp_path, command, setting, message):

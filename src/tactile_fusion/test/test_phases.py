@@ -10,7 +10,7 @@ from tactile_fusion.data import split_indices
 from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.model import force_scale_from_targets
 from tactile_fusion.recalibration import add_camera, fraction_subset, predict_torch, recalibrate
-from tactile_fusion.sources import CachedSource, ImageSource, normalised_rmse
+from tactile_fusion.sources import CachedSource, ImageSource, normalised_rmse, with_extra_noise
 from tactile_fusion.training import TrainConfig, build_model, fit, train_phases
 
 
@@ -131,6 +131,44 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
         model.cnn.set_dropout(1.0)
     with pytest.raises(ValueError, match="head_dropout"):
         TrainConfig(head_dropout=-0.1)
+
+
+def test_extra_noise_draws_one_seeded_sigma_per_frame_and_stays_in_uint8():
+    images = np.full((40, 2, 32, 32), 128, np.uint8)
+    images[0] = 0
+    images[1] = 255
+    noisy = with_extra_noise(images, 3.0, np.random.default_rng(4))
+    assert noisy.dtype == np.uint8 and noisy.shape == images.shape
+    np.testing.assert_array_equal(noisy, with_extra_noise(images, 3.0, np.random.default_rng(4)))
+    spread = (noisy[2:].astype(float) - 128).std(axis=(1, 2, 3))
+    assert spread.max() < 3.2 and spread.min() < 1.0 < 2.0 < spread.max()  # sigmas spread over [0, 3]
+    assert noisy[0].max() > 0 and noisy[1].min() < 255  # clipped at the ends, not wrapped
+    np.testing.assert_array_equal(with_extra_noise(images, 0.0, np.random.default_rng(4)), images)
+
+
+def test_the_head_phase_learns_from_noisier_frames_when_asked(frames, tiny_config):
+    train, val = splits(frames)
+    model = model_for(frames, tiny_config).eval()
+    clean = CachedSource(model, train, "trunk")
+    noisy = CachedSource(model, train, "trunk", extra_noise_sigma=4.0, seed=2)
+    assert not torch.equal(noisy.features, clean.features) and torch.equal(noisy.targets, clean.targets)
+    torch.testing.assert_close(CachedSource(model, train, "trunk", extra_noise_sigma=4.0, seed=2).features,
+                               noisy.features, rtol=0, atol=0)
+
+    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, seed=1)
+    trained = {}
+    for sigma in (0.0, 4.0, 4.0):
+        model = model_for(frames, tiny_config)
+        train_phases(model, train, val, replace(config, head_noise_sigma=sigma))
+        trained.setdefault(sigma, []).append(model.state_dict())
+    (plain,), (first, second) = trained[0.0], trained[4.0]
+    for key in plain:
+        assert torch.equal(first[key], second[key]), key  # seeded
+    assert torch.equal(plain["cnn.trunk.0.conv.weight"], first["cnn.trunk.0.conv.weight"])  # end to end unchanged
+    assert not torch.equal(plain["cnn.last_layer.linear.weight"], first["cnn.last_layer.linear.weight"])
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="head_noise_sigma"):
+            TrainConfig(head_noise_sigma=bad)
 
 
 def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_train(frames, tiny_config):
