@@ -30,7 +30,7 @@ from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
-from tactile_fusion.training import TrainConfig
+from tactile_fusion.training import CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
 
 
@@ -57,6 +57,17 @@ def _settings(args, **train_overrides) -> tuple[ModelConfig, TrainConfig]:
         return _model_config(args), replace(_train_config(args), **train_overrides)
     except ValueError as exc:
         raise SettingsError(str(exc)) from exc
+
+
+def _fractions(text: str) -> list[float]:
+    """--fractions: comma-separated data fractions in (0, 1], checked before the base model trains for minutes."""
+    try:
+        fractions = [float(f) for f in text.split(",")]
+    except ValueError:
+        fractions = []
+    if not fractions or not all(0.0 < f <= 1.0 for f in fractions):
+        raise SettingsError(f"--fractions must be comma-separated numbers in (0, 1], got {text!r}")
+    return fractions
 
 
 def _train_config(args) -> TrainConfig:
@@ -139,7 +150,7 @@ def cmd_recalibrate(args) -> int:
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
     model_config, train_config = _settings(args, recalibration_epochs=args.recalibration_epochs)
-    fractions = [float(f) for f in args.fractions.split(",")]
+    fractions = _fractions(args.fractions)
     report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, args.add_camera, fractions,
                                      model_config, train_config, Path(args.out),
                                      progress=not (args.json or args.quiet))
@@ -216,8 +227,9 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         "0.1, as in the end-to-end phase and recalibration; 0 fits the training conditions closer "
                         "and noisier or blurred images worse, see docs/learning.md)")
     parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
-                        help="extra sensor noise for the head phase: each training frame gets Gaussian noise of a "
-                        "standard deviation drawn from [0, this] grey levels before its conv features are cached "
+                        help="extra sensor noise for the head phase and the least-squares fusion fit: each training "
+                        "frame gets Gaussian noise of a standard deviation drawn from [0, this] grey levels before "
+                        "its conv features are cached "
                         "(default %(default)s: none; helps with noisy cameras, not with blurred ones, see "
                         "docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
@@ -294,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, SceneError, InputError,
-            SettingsError) as exc:
+            SettingsError, CheckpointMismatchError) as exc:
         print(f"tactile-fusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

@@ -35,11 +35,11 @@ class TrainConfig:
     tenth of an end-to-end one); then the exact least-squares fit of the linear fusion layer (least_squares.py).
     The end-to-end phase stops early after `patience` epochs without a better validation RMSE; the head phase runs
     all its epochs (`head_phase`), at the model's dropout rate unless `head_dropout` says otherwise (without dropout
-    there, the shipped model's settings reach a tenth less error in distribution but twice the total-force error
+    there, the shipped model's settings reach a tenth less error per bin in distribution but twice the total-force error
     under the effects the training never saw, docs/learning.md). With `head_noise_sigma` the head phase and the
     least-squares fit learn from the features of the training frames with extra sensor noise (measured: 4-6 times
-    less total-force error than the shipped model on noisier, flickering or drifting images, far more on blurred
-    ones; not the default, docs/learning.md). Modular recalibration (recalibration.py) trains
+    less total-force error than the shipped model on noisier, flickering or drifting images, but 16 times more on
+    blurred ones; not the default, docs/learning.md). Modular recalibration (recalibration.py) trains
     like the head phase: `recalibration_phase`.
 
     The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 13 x 1017 end-to-end
@@ -120,6 +120,11 @@ class BatchSource(Protocol):
     def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor: ...
 
     def target(self, indices: np.ndarray) -> torch.Tensor: ...
+
+
+class CheckpointMismatchError(ValueError):
+    """A checkpoint to resume from that another model or other training settings wrote (the message says what to
+    do)."""
 
 
 @dataclass
@@ -286,16 +291,19 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
-        raise ValueError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, not "
-                         f"{model.config.to_dict()}: resume with the same model settings or delete the checkpoint")
+        raise CheckpointMismatchError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, "
+                                      f"not {model.config.to_dict()}: resume with the same model settings or delete "
+                                      "the checkpoint")
     # Settings added since the checkpoint was written count as their defaults (they did not exist then).
     if {**asdict(TrainConfig()), **checkpoint["train_config"]} != asdict(config):
-        raise ValueError(f"checkpoint {path} was written with training settings {checkpoint['train_config']}, "
-                         f"not {asdict(config)}: resume with the same settings or delete the checkpoint")
+        raise CheckpointMismatchError(f"checkpoint {path} was written with training settings "
+                                      f"{checkpoint['train_config']}, not {asdict(config)}: resume with the same "
+                                      "settings or delete the checkpoint")
     try:
         model.load_state_dict(checkpoint["model"])
     except RuntimeError as exc:
-        raise ValueError(f"checkpoint {path} does not fit this model ({exc}); delete it to start afresh") from exc
+        raise CheckpointMismatchError(f"checkpoint {path} does not fit this model ({exc}); delete it to start "
+                                      "afresh") from exc
     optimizer.load_state_dict(checkpoint["optimizer"])
     scheduler.load_state_dict(checkpoint["scheduler"])
     return checkpoint["state"]

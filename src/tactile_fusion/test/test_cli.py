@@ -210,16 +210,30 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
 
 
 @pytest.mark.parametrize("command, setting, message", [
-    ("train", ["--head-dropout", "1.5"], "head_dropout must be in [0, 1)"),
-    ("train", ["--epochs", "0"], "max_epochs must be >= 1"),
-    ("train", ["--head-noise-sigma", "-1"], "head_noise_sigma must be in [0, 255]"),
-    ("recalibrate", ["--recalibration-epochs", "0"], "recalibration_epochs must be >= 1"),
+    ("train", ["--head-dropout", "1.5"], "TrainConfig.head_dropout must be in [0, 1)"),
+    ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be >= 1"),
+    ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
+    ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be >= 1"),
+    ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
+    ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),
 ])
-def test_a_setting_out_of_range_is_refused_before_any_work(tmp_path, command, setting, message):
+def test_a_setting_out_of_range_is_refused_with_a_clear_error(tmp_path, command, setting, message):
     result = run(command, *setting, "--frames", "30", "--out", str(tmp_path / "out"), *TINY, check=False)
     assert result.returncode == 2
-    assert f"tactile-fusion {command}: error: TrainConfig.{message}" in result.stderr
+    assert f"tactile-fusion {command}: error: {message}" in result.stderr
     assert "Traceback" not in result.stderr and not (tmp_path / "out").exists()
+
+
+def test_resuming_from_a_checkpoint_of_another_model_is_refused_with_a_clear_error(tmp_path):
+    import torch
+
+    out = tmp_path / "model"
+    out.mkdir()
+    torch.save({"model_config": {"hidden_features": 1}}, out / "checkpoint_end_to_end.pt")
+    result = run("train", "--frames", "30", "--epochs", "1", "--head-epochs", "1", "--resume", "--out", str(out),
+                 *TINY, check=False)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "tactile-fusion train: error: checkpoint" in result.stderr and "delete the checkpoint" in result.stderr
 
 
 def test_a_model_for_another_sensor_is_refused(tiny_model):
