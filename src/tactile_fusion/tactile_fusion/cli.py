@@ -229,9 +229,8 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
                         help="extra sensor noise for the head phase and the least-squares fusion fit: each training "
                         "frame gets Gaussian noise of a standard deviation drawn from [0, this] grey levels before "
-                        "its conv features are cached "
-                        "(default %(default)s: none; helps with noisy cameras, not with blurred ones, see "
-                        "docs/learning.md)")
+                        "its conv features are cached (default %(default)s: none; helps with noisy cameras, not "
+                        "with blurred ones, see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "
