@@ -74,7 +74,8 @@ def _train_config(args) -> TrainConfig:
     return TrainConfig(max_epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
                        patience=args.patience, seed=args.seed, head_epochs=args.head_epochs,
                        head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
-                       head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma)
+                       head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma,
+                       head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px)
 
 
 def cmd_train(args) -> int:
@@ -223,14 +224,17 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate,
                         help="learning rate of the head phase and of recalibration")
     parser.add_argument("--head-dropout", type=float, default=train.head_dropout,
-                        help="dropout rate of the fully connected layers in the head phase (default: the model's, "
-                        "0.1, as in the end-to-end phase and recalibration; 0 fits the training conditions closer "
-                        "and noisier or blurred images worse, see docs/learning.md)")
+                        help="dropout rate of the fully connected layers in the head phase (default %(default)s; "
+                        "the end-to-end phase and recalibration use the model's, 0.1)")
     parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
-                        help="extra sensor noise for the head phase and the least-squares fusion fit: each training "
-                        "frame gets Gaussian noise of a standard deviation drawn from [0, this] grey levels before "
-                        "its conv features are cached (default %(default)s: none; helps with noisy cameras, not "
-                        "with blurred ones, see docs/learning.md)")
+                        help="the head phase and the least-squares fusion fit also learn from an imperfect copy of "
+                        "the training frames: Gaussian noise with a standard deviation drawn per frame from [0, "
+                        "this] grey levels (default %(default)s) ...")
+    parser.add_argument("--head-blur-fraction", type=float, default=train.head_blur_fraction,
+                        help="... and defocus blur on this share of them (default %(default)s) ...")
+    parser.add_argument("--head-blur-sigma-px", type=float, default=train.head_blur_sigma_px,
+                        help="... with a sigma drawn from [0.3, this] pixels (default %(default)s). Noise 0 and blur "
+                        "0: no copy, as before 2026-11-22 (see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

@@ -10,7 +10,7 @@ from tactile_fusion.data import split_indices
 from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.model import force_scale_from_targets
 from tactile_fusion.recalibration import add_camera, fraction_subset, predict_torch, recalibrate
-from tactile_fusion.sources import CachedSource, ImageSource, normalised_rmse, with_extra_noise
+from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 from tactile_fusion.training import TrainConfig, build_model, fit, train_phases
 
 
@@ -117,7 +117,7 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
     train_phases(model, train, val, config, on_epoch_end=record_rates)
     assert rates == [(0.1, 0.1), (0.3, 0.3), (0.3, 0.3)]
     train_phases(model, train, val, replace(config, head_dropout=None), on_epoch_end=record_rates)
-    assert rates[3:] == [(0.1, 0.1)] * 3  # the default: the model's rate throughout
+    assert rates[3:] == [(0.1, 0.1)] * 3  # None: the model's rate throughout
     assert model.cnn.set_dropout(0.2) == 0.1  # restored after the phase
 
     def interrupt_in_head(epoch, record):
@@ -133,42 +133,70 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
         TrainConfig(head_dropout=-0.1)
 
 
-def test_extra_noise_draws_one_seeded_sigma_per_frame_and_stays_in_uint8():
+def test_augmented_noise_draws_one_seeded_sigma_per_frame_and_stays_in_uint8():
     images = np.full((40, 2, 32, 32), 128, np.uint8)
     images[0] = 0
     images[1] = 255
-    noisy = with_extra_noise(images, 3.0, np.random.default_rng(4))
+    noise = Augmentation(noise_sigma=3.0)
+    noisy = noise.apply(images, np.random.default_rng(4))
     assert noisy.dtype == np.uint8 and noisy.shape == images.shape
-    np.testing.assert_array_equal(noisy, with_extra_noise(images, 3.0, np.random.default_rng(4)))
+    np.testing.assert_array_equal(noisy, noise.apply(images, np.random.default_rng(4)))
     spread = (noisy[2:].astype(float) - 128).std(axis=(1, 2, 3))
     assert spread.max() < 3.2 and spread.min() < 1.0 < 2.0 < spread.max()  # sigmas spread over [0, 3]
     assert 0 < noisy[0].max() < 64 and 192 < noisy[1].min() < 255  # clipped at the ends, not wrapped
-    np.testing.assert_array_equal(with_extra_noise(images, 0.0, np.random.default_rng(4)), images)
+    assert not Augmentation().active
+    np.testing.assert_array_equal(Augmentation().apply(images, np.random.default_rng(4)), images)
 
 
-def test_the_head_phase_learns_from_noisier_frames_when_asked(frames, tiny_config):
+def test_augmented_blur_defocuses_the_asked_share_of_frames_only():
+    images = np.random.default_rng(0).integers(0, 256, (200, 2, 24, 24), dtype=np.uint8)
+    blur = Augmentation(blur_fraction=0.3, blur_sigma_px=2.0)
+    blurred = blur.apply(images, np.random.default_rng(5))
+    np.testing.assert_array_equal(blurred, blur.apply(images, np.random.default_rng(5)))
+    changed = np.any(blurred != images, axis=(1, 2, 3))
+    assert 40 < changed.sum() < 80  # about 30 % of 200 frames
+    def roughness(frames):
+        return np.abs(np.diff(frames.astype(float), axis=-1)).mean(axis=(1, 2, 3))
+
+    assert np.all(roughness(blurred[changed]) < roughness(images[changed]))  # blur smooths every changed frame ...
+    assert np.median(roughness(blurred[changed])) < 0.5 * np.median(roughness(images))  # ... most of them clearly
+    assert np.all(np.any(Augmentation(blur_fraction=1.0).apply(images, np.random.default_rng(5)) != images,
+                         axis=(1, 2, 3)))
+    for field, bad in (("noise_sigma", -1.0), ("noise_sigma", float("nan")), ("blur_fraction", 1.5),
+                       ("blur_sigma_px", 0.1)):
+        with pytest.raises(ValueError, match=f"Augmentation.{field} must be"):
+            Augmentation(**{field: bad})
+
+
+def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames, tiny_config):
     train, val = splits(frames)
     model = model_for(frames, tiny_config).eval()
     clean = CachedSource(model, train, "trunk")
-    noisy = CachedSource(model, train, "trunk", extra_noise_sigma=4.0, seed=2)
-    assert not torch.equal(noisy.features, clean.features) and torch.equal(noisy.targets, clean.targets)
-    torch.testing.assert_close(CachedSource(model, train, "trunk", extra_noise_sigma=4.0, seed=2).features,
-                               noisy.features, rtol=0, atol=0)
+    augmentation = Augmentation(noise_sigma=4.0, blur_fraction=0.5)
+    both = CachedSource(model, train, "trunk", augmentation=augmentation, seed=2)
+    n = len(clean)
+    assert len(both) == 2 * n
+    assert torch.equal(both.features[:n], clean.features) and not torch.equal(both.features[n:], clean.features)
+    assert torch.equal(both.targets, torch.cat([clean.targets, clean.targets]))
+    torch.testing.assert_close(CachedSource(model, train, "trunk", augmentation=augmentation, seed=2).features,
+                               both.features, rtol=0, atol=0)
 
     config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, seed=1)
-    trained = {}
-    for sigma in (0.0, 4.0, 4.0):
+    plain_config = replace(config, head_noise_sigma=0.0, head_blur_fraction=0.0)
+    trained = []
+    for settings in (plain_config, config, config):
         model = model_for(frames, tiny_config)
-        train_phases(model, train, val, replace(config, head_noise_sigma=sigma))
-        trained.setdefault(sigma, []).append(model.state_dict())
-    (plain,), (first, second) = trained[0.0], trained[4.0]
+        train_phases(model, train, val, settings)
+        trained.append(model.state_dict())
+    plain, first, second = trained
     for key in plain:
         assert torch.equal(first[key], second[key]), key  # seeded
     assert torch.equal(plain["cnn.trunk.0.conv.weight"], first["cnn.trunk.0.conv.weight"])  # end to end unchanged
     assert not torch.equal(plain["cnn.last_layer.linear.weight"], first["cnn.last_layer.linear.weight"])
-    for bad in (-1.0, float("nan")):
-        with pytest.raises(ValueError, match="head_noise_sigma"):
-            TrainConfig(head_noise_sigma=bad)
+    for bad in ({"head_noise_sigma": -1.0}, {"head_noise_sigma": float("nan")}, {"head_blur_fraction": 2.0},
+                {"head_blur_sigma_px": 0.0}):
+        with pytest.raises(ValueError, match=f"TrainConfig.{next(iter(bad))} must be"):
+            TrainConfig(**bad)
 
 
 def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_train(frames, tiny_config):

@@ -176,14 +176,16 @@ class DefocusBlur(EffectSpec):
 
 
 class _DefocusBlur(BoundEffect):
-    def __init__(self, spec: DefocusBlur, ctx: EffectContext):
-        super().__init__(spec, ctx)
-        self.ksize = 2 * math.ceil(3.0 * spec.sigma_px) + 1
-
     def apply(self, images, frame_index, time_s):
         for c in self.selected:
-            images[c] = cv2.GaussianBlur(images[c], (self.ksize, self.ksize), self.spec.sigma_px,
-                                         borderType=cv2.BORDER_REPLICATE)
+            images[c] = defocus(images[c], self.spec.sigma_px)
+
+
+def defocus(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """One camera image (H, W), float32 or uint8, seen out of focus: a Gaussian blur of `sigma_px` pixels, the kernel
+    cut at 3 sigma, edges replicated. The same dtype comes back."""
+    ksize = 2 * math.ceil(3.0 * sigma_px) + 1
+    return cv2.GaussianBlur(image, (ksize, ksize), sigma_px, borderType=cv2.BORDER_REPLICATE)
 
 
 # --- LIGHT ----------------------------------------------------------------------------------------------------------
