@@ -233,8 +233,9 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-blur-fraction", type=float, default=train.head_blur_fraction,
                         help="... and defocus blur on this share of them (default %(default)s) ...")
     parser.add_argument("--head-blur-sigma-px", type=float, default=train.head_blur_sigma_px,
-                        help="... with a sigma drawn from [0.3, this] pixels (default %(default)s). Noise 0 and blur "
-                        "0: no copy, as before 2026-11-22 (see docs/learning.md)")
+                        help="... with a sigma drawn from [0.3, this] pixels (default %(default)s). "
+                        "--head-noise-sigma 0 --head-blur-fraction 0: no copy, the head learns from the frames alone "
+                        "(see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

@@ -56,7 +56,8 @@ class CachedSource:
 
     The front part must stay frozen while this source is used (the caller sets requires_grad False on it).
     augmentation: if given and active, the source holds 2 N samples: the N frames, then an imperfect copy of each
-    (`Augmentation.apply`, seeded by `seed`) with the same targets.
+    (`Augmentation.apply`, drawn per chunk of `batch_size` frames from (`seed`, the chunk's first frame)) with the
+    same targets (sample i + N has frame i's).
     """
 
     def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, batch_size: int = 32,
@@ -66,12 +67,11 @@ class CachedSource:
         self.cut = cut
         self.force_scale_n = model.force_scale_n
         self.features = self._front(model, frames, cut, batch_size)                 # (N, C, features at the cut)
-        self.targets = torch.from_numpy(np.asarray(frames.bin_forces_n))
+        self.targets = torch.from_numpy(np.asarray(frames.bin_forces_n))            # (N, rows, cols, 3), once
         if augmentation is not None and augmentation.active:
             copy = self._front(model, frames, cut, batch_size, lambda images, start: augmentation.apply(
                 images, np.random.default_rng([seed, start])))
             self.features = torch.cat([self.features, copy])
-            self.targets = torch.cat([self.targets, self.targets])
 
     @staticmethod
     @torch.no_grad()
@@ -108,7 +108,7 @@ class CachedSource:
         return model.fuse(self.features_at(model, indices))
 
     def target(self, indices: np.ndarray) -> torch.Tensor:
-        return self.targets[np.sort(indices)] / self.force_scale_n
+        return self.targets[np.sort(indices) % len(self.targets)] / self.force_scale_n
 
 
 #: The weakest blur an augmented frame gets (pixels): a Gaussian below this hardly changes an image.
@@ -118,12 +118,13 @@ MIN_BLUR_SIGMA_PX = 0.3
 @dataclass(frozen=True)
 class Augmentation:
     """Camera imperfections for a copy of the training frames: defocus blur on a share of them, then extra sensor
-    noise on all, both drawn per frame (the simulator's order: optics before the sensor).
+    noise on all, both drawn per frame. The blur acts on the simulated frames, which carry the scene's own sensor
+    noise, so it smooths that noise too; the extra noise after it stands in for the sensor's.
 
-    Why: a head trained on the clean frames alone turned 2.5 to 16 times worse on noisier or blurred images than the
-    training's; one trained on the clean frames plus this copy (noise up to 1.2 grey levels, a fifth blurred with up
-    to 1.2 px) lost nothing in distribution and a third of the total-force error on the effects scene
-    (docs/learning.md).
+    Why: the head learns from the conv trunk's features of images unlike the training's, which the trunk itself
+    never saw. Trained on the clean frames plus this copy (noise up to 1.2 grey levels, a fifth blurred with up to
+    1.2 px), the shipped model kept its error in distribution, and six of the eight windows of the effects scene
+    lost half to four fifths of their total-force error; the misaligned camera's doubled (docs/learning.md).
     """
 
     noise_sigma: float = 0.0     # Gaussian noise, standard deviation per frame from [0, this] grey levels

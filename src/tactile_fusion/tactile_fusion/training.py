@@ -30,17 +30,17 @@ from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, norm
 class TrainConfig:
     """How to train. Two runs with the same config, data and seed give the same weights.
 
-    Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully
-    connected layers and fusion) alone for up to `head_epochs` on cached conv features (an epoch costs about a
-    tenth of an end-to-end one); then the exact least-squares fit of the linear fusion layer (least_squares.py).
-    The end-to-end phase stops early after `patience` epochs without a better validation RMSE; the head phase runs
-    all its epochs (`head_phase`), without dropout (`head_dropout`; None: the model's rate). The head phase and the
-    least-squares fit learn from the training frames and from a copy of them seen through camera imperfections
-    (`head_augmentation`: extra sensor noise up to `head_noise_sigma` grey levels on all, defocus blur up to
-    `head_blur_sigma_px` on a `head_blur_fraction` share). Measured against the dropout of 0.1 on clean frames alone
-    that this replaced: the same error in distribution, a third less total-force error on the effects scene
-    (docs/learning.md). Modular recalibration (recalibration.py) trains like the head phase, on clean frames:
-    `recalibration_phase`.
+    Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully connected
+    layers and fusion) alone for up to `head_epochs` on cached conv features (an epoch over the frames and their
+    imperfect copy costs about a sixth of an end-to-end one); then the exact least-squares fit of the linear fusion
+    layer (least_squares.py). The end-to-end phase stops early after `patience` epochs without a better validation
+    RMSE; the head phase runs all its epochs (`head_phase`), without dropout (`head_dropout`; None: the model's
+    rate). The head phase and the least-squares fit learn from the training frames and from a copy of them seen
+    through camera imperfections (`head_augmentation`: extra sensor noise up to `head_noise_sigma` grey levels on
+    all, defocus blur up to `head_blur_sigma_px` on a `head_blur_fraction` share). Measured against the dropout of
+    0.1 on clean frames alone that this replaced: the same error in distribution; on the effects scene six of eight
+    windows lose half to four fifths of their total-force error, the misaligned camera's doubles (docs/learning.md).
+    Modular recalibration (recalibration.py) trains like the head phase, on clean frames: `recalibration_phase`.
 
     The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 13 x 1017 end-to-end
     steps; the head phase's 15 epochs on the frames and their imperfect copy make 15 x 509 steps): on the former
@@ -253,7 +253,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
     Why phases: an end-to-end step spends almost all its time in the convolutions at full resolution, while
     the head (fully connected layers and fusion) needs many more epochs than the conv filters to converge; with the
-    trunk frozen its output is computed once and a head epoch costs about a tenth of an end-to-end one. And the
+    trunk frozen its output is computed once and a head epoch costs a sixth of an end-to-end one or less. And the
     fusion layer is linear: its exact least-squares weights for the final features beat what gradient steps
     reach (docs/learning.md). Each gradient phase keeps its own checkpoint in `checkpoint_dir`, so an
     interrupted run resumes in either phase (the least-squares fit is deterministic and takes seconds).
@@ -282,6 +282,10 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     return results
 
 
+#: Head-phase settings of a checkpoint written before they existed: dropout at the model's rate, no imperfect copy.
+SETTINGS_BEFORE_THEY_EXISTED = {"head_dropout": None, "head_noise_sigma": 0.0, "head_blur_fraction": 0.0}
+
+
 def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:
     return None if checkpoint_dir is None else checkpoint_dir / f"checkpoint_{phase}.pt"
 
@@ -302,8 +306,13 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
         raise CheckpointMismatchError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, "
                                       f"not {model.config.to_dict()}: resume with the same model settings or delete "
                                       "the checkpoint")
-    # Settings added since the checkpoint was written count as their defaults (they did not exist then).
-    if {**asdict(TrainConfig()), **checkpoint["train_config"]} != asdict(config):
+    # Settings added since the checkpoint was written count as what training did without them: their defaults, or
+    # for the head phase's settings whose default changed, the value that reproduces the old behaviour.
+    saved = checkpoint["train_config"]
+    if "head_blur_fraction" not in saved and saved.get("head_noise_sigma", 0.0) > 0:
+        raise CheckpointMismatchError(f"checkpoint {path} was written when --head-noise-sigma replaced the training "
+                                      "frames (it now adds an imperfect copy): delete the checkpoint")
+    if {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved} != asdict(config):
         raise CheckpointMismatchError(f"checkpoint {path} was written with training settings "
                                       f"{checkpoint['train_config']}, not {asdict(config)}: resume with the same "
                                       "settings or delete the checkpoint")

@@ -119,6 +119,10 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
     train_phases(model, train, val, replace(config, head_dropout=None), on_epoch_end=record_rates)
     assert rates[3:] == [(0.1, 0.1)] * 3  # None: the model's rate throughout
     assert model.cnn.set_dropout(0.2) == 0.1  # restored after the phase
+    defaults = replace(TrainConfig(), max_epochs=1, head_epochs=2, batch_size=8)
+    train_phases(model, train, val, defaults, on_epoch_end=record_rates)
+    assert rates[6:] == [(0.2, 0.2), (0.0, 0.0), (0.0, 0.0)]  # the default: no dropout in the head phase ...
+    assert defaults.head_augmentation().active  # ... which also learns from an imperfect copy of the frames
 
     def interrupt_in_head(epoch, record):
         if model.cnn.first_layer.dropout.p == 0.3:
@@ -145,6 +149,14 @@ def test_augmented_noise_draws_one_seeded_sigma_per_frame_and_stays_in_uint8():
     assert spread.max() < 3.2 and spread.min() < 1.0 < 2.0 < spread.max()  # sigmas spread over [0, 3]
     assert 0 < noisy[0].max() < 64 and 192 < noisy[1].min() < 255  # clipped at the ends, not wrapped
     assert not Augmentation().active
+    # Blur first, then noise (the sensor's noise is not blurred): on flat frames the noise stays white, neighbouring
+    # pixels differing by about 1.13 sigma (2 / sqrt(pi)); blurred after, they would differ far less.
+    both = Augmentation(noise_sigma=3.0, blur_fraction=1.0, blur_sigma_px=2.0).apply(images[2:],
+                                                                                     np.random.default_rng(4))
+    deviation = both.astype(float) - 128
+    strong = deviation.std(axis=(1, 2, 3)) > 1.5
+    steps = np.abs(np.diff(deviation, axis=-1)).mean(axis=(1, 2, 3))
+    assert strong.sum() > 10 and np.all(steps[strong] > 0.9 * deviation.std(axis=(1, 2, 3))[strong])
     np.testing.assert_array_equal(Augmentation().apply(images, np.random.default_rng(4)), images)
 
 
@@ -177,7 +189,7 @@ def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames,
     n = len(clean)
     assert len(both) == 2 * n
     assert torch.equal(both.features[:n], clean.features) and not torch.equal(both.features[n:], clean.features)
-    assert torch.equal(both.targets, torch.cat([clean.targets, clean.targets]))
+    assert torch.equal(both.target(np.arange(2 * n)), torch.cat([clean.target(np.arange(n))] * 2))
     torch.testing.assert_close(CachedSource(model, train, "trunk", augmentation=augmentation, seed=2).features,
                                both.features, rtol=0, atol=0)
 

@@ -110,6 +110,42 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(
                 resume=True)
 
 
+def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_trained(frames, tiny_config, tmp_path):
+    """Head settings whose default changed count as what training did before they existed: no copy, the model's
+    dropout. A checkpoint of the time when --head-noise-sigma replaced the frames cannot be resumed at all."""
+    import torch
+
+    old_behaviour = TrainConfig(max_epochs=2, batch_size=8, head_dropout=None, head_noise_sigma=0.0,
+                                head_blur_fraction=0.0)
+    checkpoint = tmp_path / "checkpoint.pt"
+
+    def interrupt(epoch, record):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, on_epoch_end=interrupt)
+    saved = torch.load(checkpoint, weights_only=False)
+    for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px"):
+        del saved["train_config"][key]  # as written before these settings existed
+    torch.save(saved, checkpoint)
+    with pytest.raises(ValueError, match="same settings"):  # today's defaults train another head
+        trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_dropout=0.0, head_noise_sigma=1.2,
+                                                         head_blur_fraction=0.2), checkpoint_path=checkpoint,
+                resume=True)
+    _, result = trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, resume=True)
+    assert result.epochs_run == 2
+
+    with pytest.raises(KeyboardInterrupt):
+        trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, on_epoch_end=interrupt)
+    saved = torch.load(checkpoint, weights_only=False)
+    del saved["train_config"]["head_blur_fraction"]
+    saved["train_config"]["head_noise_sigma"] = 1.2  # noisy frames instead of the clean ones, as then
+    torch.save(saved, checkpoint)
+    with pytest.raises(ValueError, match="replaced the training frames"):
+        trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_noise_sigma=1.2),
+                checkpoint_path=checkpoint, resume=True)
+
+
 def test_resuming_a_model_with_another_activation_is_refused(frames, tiny_config, tmp_path):
     """Same weight shapes, another function: load_state_dict alone would accept the checkpoint."""
     checkpoint = tmp_path / "checkpoint.pt"
