@@ -89,11 +89,10 @@ def test_resuming_with_other_settings_is_refused(frames, tiny_config, tmp_path):
         trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=4), checkpoint_path=checkpoint, resume=True)
 
 
-def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(frames, tiny_config, tmp_path):
+def checkpoint_as_written_then(frames, tiny_config, config, checkpoint, change):
+    """A checkpoint of `config` after one epoch, its saved training settings passed through change(dict) (as an
+    older version wrote them)."""
     import torch
-
-    config = TrainConfig(max_epochs=2, batch_size=8)
-    checkpoint = tmp_path / "checkpoint.pt"
 
     def interrupt(epoch, record):
         raise KeyboardInterrupt
@@ -101,8 +100,15 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(
     with pytest.raises(KeyboardInterrupt):
         trained(frames, tiny_config, config, checkpoint_path=checkpoint, on_epoch_end=interrupt)
     saved = torch.load(checkpoint, weights_only=False)
-    del saved["train_config"]["recalibration_epochs"]  # as written before that setting was added
+    change(saved["train_config"])
     torch.save(saved, checkpoint)
+
+
+def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(frames, tiny_config, tmp_path):
+    config = TrainConfig(max_epochs=2, batch_size=8)
+    checkpoint = tmp_path / "checkpoint.pt"
+    checkpoint_as_written_then(frames, tiny_config, config, checkpoint,
+                               lambda saved: saved.pop("recalibration_epochs"))  # before that setting was added
     _, result = trained(frames, tiny_config, config, checkpoint_path=checkpoint, resume=True)
     assert result.epochs_run == 2
     with pytest.raises(ValueError, match="same settings"):
@@ -113,21 +119,15 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(
 def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_trained(frames, tiny_config, tmp_path):
     """Head settings whose default changed count as what training did before they existed: no copy, the model's
     dropout. A checkpoint of the time when --head-noise-sigma replaced the frames cannot be resumed at all."""
-    import torch
-
     old_behaviour = TrainConfig(max_epochs=2, batch_size=8, head_dropout=None, head_noise_sigma=0.0,
                                 head_blur_fraction=0.0)
     checkpoint = tmp_path / "checkpoint.pt"
 
-    def interrupt(epoch, record):
-        raise KeyboardInterrupt
+    def before_the_head_settings(saved):
+        for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px"):
+            del saved[key]
 
-    with pytest.raises(KeyboardInterrupt):
-        trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, on_epoch_end=interrupt)
-    saved = torch.load(checkpoint, weights_only=False)
-    for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px"):
-        del saved["train_config"][key]  # as written before these settings existed
-    torch.save(saved, checkpoint)
+    checkpoint_as_written_then(frames, tiny_config, old_behaviour, checkpoint, before_the_head_settings)
     with pytest.raises(ValueError, match="same settings"):  # today's defaults train another head
         trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_dropout=0.0, head_noise_sigma=1.2,
                                                          head_blur_fraction=0.2), checkpoint_path=checkpoint,
@@ -135,12 +135,11 @@ def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_train
     _, result = trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, resume=True)
     assert result.epochs_run == 2
 
-    with pytest.raises(KeyboardInterrupt):
-        trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, on_epoch_end=interrupt)
-    saved = torch.load(checkpoint, weights_only=False)
-    del saved["train_config"]["head_blur_fraction"]
-    saved["train_config"]["head_noise_sigma"] = 1.2  # noisy frames instead of the clean ones, as then
-    torch.save(saved, checkpoint)
+    def replaced_by_noisy_frames(saved):  # noisy frames instead of the clean ones, as --head-noise-sigma did then
+        del saved["head_blur_fraction"]
+        saved["head_noise_sigma"] = 1.2
+
+    checkpoint_as_written_then(frames, tiny_config, old_behaviour, checkpoint, replaced_by_noisy_frames)
     with pytest.raises(ValueError, match="replaced the training frames"):
         trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_noise_sigma=1.2),
                 checkpoint_path=checkpoint, resume=True)
