@@ -30,6 +30,7 @@ from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
+from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
 
@@ -233,7 +234,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-blur-fraction", type=float, default=train.head_blur_fraction,
                         help="... and defocus blur on this share of them (default %(default)s) ...")
     parser.add_argument("--head-blur-sigma-px", type=float, default=train.head_blur_sigma_px,
-                        help="... with a sigma drawn from [0.3, this] pixels (default %(default)s). "
+                        help=f"... with a sigma drawn from [{MIN_BLUR_SIGMA_PX}, this] pixels (default %(default)s). "
                         "--head-noise-sigma 0 --head-blur-fraction 0: no copy, the head learns from the frames alone "
                         "(see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")

@@ -314,7 +314,7 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
                                       "frames (it now adds an imperfect copy): delete the checkpoint")
     if {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved} != asdict(config):
         raise CheckpointMismatchError(f"checkpoint {path} was written with training settings "
-                                      f"{checkpoint['train_config']}, not {asdict(config)}: resume with the same "
+                                      f"{saved}, not {asdict(config)}: resume with the same "
                                       "settings or delete the checkpoint")
     try:
         model.load_state_dict(checkpoint["model"])

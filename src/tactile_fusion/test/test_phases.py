@@ -167,6 +167,7 @@ def test_augmented_blur_defocuses_the_asked_share_of_frames_only():
     np.testing.assert_array_equal(blurred, blur.apply(images, np.random.default_rng(5)))
     changed = np.any(blurred != images, axis=(1, 2, 3))
     assert 40 < changed.sum() < 80  # about 30 % of 200 frames
+
     def roughness(frames):
         return np.abs(np.diff(frames.astype(float), axis=-1)).mean(axis=(1, 2, 3))
 
