@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorDescription
-from tactile_fusion.model import ForceFusionNet, ModelConfig
+from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig
 
 MODEL_JSON = "model.json"
 STATE_DICT = "model.pt"
@@ -70,6 +70,7 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = ""
         "rows": model.rows,
         "cols": model.cols,
         "force_scale_n": [float(v) for v in model.force_scale_n],
+        "components": list(model.components),
         "model_config": model.config.to_dict(),
     }
     write_json(out_dir / MODEL_JSON, description)
@@ -89,11 +90,18 @@ def read_model_json(model_dir: str | Path) -> dict:
     return description
 
 
+def model_components(description: dict) -> tuple[str, ...]:
+    """The force components a model.json says the model estimates; all three for a model saved before models could
+    leave one out."""
+    return tuple(description.get("components", FORCE_COMPONENTS))
+
+
 def load_model(model_dir: str | Path) -> ForceFusionNet:
     """The torch model of a model directory, in evaluation mode."""
     description = read_model_json(model_dir)
     model = ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
-                           description["rows"], description["cols"], torch.tensor(description["force_scale_n"]))
+                           description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
+                           model_components(description))
     state_path = Path(model_dir) / STATE_DICT
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")

@@ -25,12 +25,19 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, load_sensor
-from tactile_fusion.artifacts import METRICS_JSON, ModelFileError, check_model_fits, default_model_dir
+from tactile_fusion.artifacts import (
+    METRICS_JSON,
+    ModelFileError,
+    check_model_fits,
+    default_model_dir,
+    model_components,
+    read_model_json,
+)
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
-from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
-from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
+from tactile_fusion.model import FEATURE_ACTIVATIONS, FORCE_COMPONENTS, ModelConfig
+from tactile_fusion.sources import MIN_BLUR_SIGMA_PX, Augmentation
 from tactile_fusion.training import CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
 
@@ -76,7 +83,8 @@ def _train_config(args) -> TrainConfig:
                        patience=args.patience, seed=args.seed, head_epochs=args.head_epochs,
                        head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
                        head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma,
-                       head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px)
+                       head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px,
+                       head_misalign_fraction=args.head_misalign_fraction)
 
 
 def cmd_train(args) -> int:
@@ -96,6 +104,10 @@ def cmd_train(args) -> int:
                                progress=not args.quiet, threads=args.threads, data_source=source)
     print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
+    components = model_components(read_model_json(args.out))
+    if len(components) < len(FORCE_COMPONENTS):
+        print(f"it estimates {', '.join(components)} only: the training data has no "
+              f"{', '.join(c for c in FORCE_COMPONENTS if c not in components)}, which the model outputs as 0")
     return 0
 
 
@@ -234,8 +246,13 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-blur-fraction", type=float, default=train.head_blur_fraction,
                         help="... and defocus blur on this share of them (default %(default)s) ...")
     parser.add_argument("--head-blur-sigma-px", type=float, default=train.head_blur_sigma_px,
-                        help=f"... with a sigma drawn from [{MIN_BLUR_SIGMA_PX}, this] pixels (default %(default)s). "
-                        "--head-noise-sigma 0 --head-blur-fraction 0: no copy, the head learns from the frames alone "
+                        help=f"... with a sigma drawn from [{MIN_BLUR_SIGMA_PX}, this] pixels (default %(default)s) "
+                        "...")
+    parser.add_argument("--head-misalign-fraction", type=float, default=train.head_misalign_fraction,
+                        help="... and on this share of them one camera knocked askew: shifted up to "
+                        f"{Augmentation.misalign_shift_px} px, turned up to {Augmentation.misalign_rotation_deg} "
+                        "degrees (default %(default)s). --head-noise-sigma 0 --head-blur-fraction 0 "
+                        "--head-misalign-fraction 0: no copy, the head learns from the frames alone "
                         "(see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)

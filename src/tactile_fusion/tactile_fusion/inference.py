@@ -18,7 +18,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tactile_fusion.artifacts import ModelFileError, backend_file, default_model_dir, load_model, read_model_json
+from tactile_fusion.artifacts import (
+    ModelFileError,
+    backend_file,
+    default_model_dir,
+    load_model,
+    model_components,
+    read_model_json,
+)
 from tactile_fusion.export import copy_to_half
 from tactile_fusion.model import ForceFusionNet, difference_images
 
@@ -37,11 +44,13 @@ class ForcePredictor:
 
     backend = ""
 
-    def __init__(self, camera_ids: Sequence[str], rows: int, cols: int, image_size: int, precision: str):
+    def __init__(self, camera_ids: Sequence[str], rows: int, cols: int, image_size: int, precision: str,
+                 components: Sequence[str]):
         self.camera_ids = tuple(camera_ids)
         self.rows, self.cols = rows, cols
         self.image_size = image_size
         self.precision = precision
+        self.components = tuple(components)  # the force components estimated; the others are always 0
 
     def predict(self, images: np.ndarray, reference: np.ndarray, camera_ids: Sequence[str] | None = None,
                 camera_ok: np.ndarray | None = None) -> np.ndarray:
@@ -126,7 +135,8 @@ class TorchPredictor(ForcePredictor):
     backend = "torch"
 
     def __init__(self, model: ForceFusionNet, precision: str = "fp32", threads: int | None = DEFAULT_THREADS):
-        super().__init__(model.camera_ids, model.rows, model.cols, model.config.image_size, precision)
+        super().__init__(model.camera_ids, model.rows, model.cols, model.config.image_size, precision,
+                         model.components)
         if precision not in BACKENDS["torch"]:
             raise ValueError(f"torch backend: precision must be one of {BACKENDS['torch']}, got {precision!r}")
         self.model = model.eval() if precision == "fp32" else copy_to_half(model)
@@ -149,7 +159,8 @@ class OnnxRuntimePredictor(ForcePredictor):
         import onnxruntime as ort
 
         size = description["model_config"]["image_size"]
-        super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision)
+        super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision,
+                         model_components(description))
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads or 0
         options.inter_op_num_threads = 1

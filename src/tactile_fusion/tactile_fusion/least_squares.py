@@ -8,11 +8,11 @@ with this fit:
     W = argmin ||X W - Y||^2 + ridge ||W||^2  =  (X^T X + ridge I)^-1 X^T Y      (Hoerl & Kennard 1970)
 
 X: (N, C * camera_features + 1) features of the training frames in evaluation mode, with a column of ones for
-the bias (not penalised); Y: (N, rows * cols * 3) normalised forces. The ridge is chosen on the validation
-frames. For a rank-limited fusion layer the solution is projected onto the `rank` leading right singular
-vectors of the centred fitted values X W (reduced-rank regression, Izenman 1975: the best rank-r fit without a
-ridge, an approximation of the best rank-r ridge fit); the bias lies outside the rank (the layer adds it after the
-factored matrix) and is refitted for the projected matrix.
+the bias (not penalised); Y: (N, rows * cols * K) normalised forces of the K components the model estimates.
+The ridge is chosen on the validation frames. For a rank-limited fusion layer the solution is projected onto the
+`rank` leading right singular vectors of the centred fitted values X W (reduced-rank regression, Izenman 1975: the
+best rank-r fit without a ridge, an approximation of the best rank-r ridge fit); the bias lies outside the rank
+(the layer adds it after the factored matrix) and is refitted for the projected matrix.
 """
 
 from __future__ import annotations
@@ -30,16 +30,22 @@ RIDGES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 
 
 
 @torch.no_grad()
-def camera_features(model: ForceFusionNet, source, batch_size: int = 256) -> tuple[torch.Tensor, torch.Tensor]:
-    """(features (N, C * camera_features) float64, targets (N, rows * cols * 3) float64) of a CachedSource or
-    ImageSource, evaluation mode (no dropout, batch-norm running statistics)."""
+def camera_features(model: ForceFusionNet, source, batch_size: int = 256
+                    ) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """(features (N, C * camera_features) float64, targets (N, rows * cols * K) float64 of the K components the
+    model estimates, sum of the squared targets of the others) of a CachedSource or ImageSource, evaluation mode (no
+    dropout, batch-norm running statistics)."""
     model.eval()
-    features, targets = [], []
+    estimated = model.component_indices
+    others = [i for i in range(3) if i not in estimated]
+    features, targets, unestimated = [], [], 0.0
     for start in range(0, len(source), batch_size):
         idx = np.arange(start, min(start + batch_size, len(source)))
         features.append(source.features_at(model, idx).reshape(len(idx), -1).double())
-        targets.append(source.target(idx).reshape(len(idx), -1).double())
-    return torch.cat(features), torch.cat(targets)
+        target = source.target(idx).double()
+        targets.append(target[..., estimated].reshape(len(idx), -1))
+        unestimated += float(torch.sum(target[..., others] ** 2))
+    return torch.cat(features), torch.cat(targets), unestimated
 
 
 def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[float, ...] = RIDGES) -> dict:
@@ -49,8 +55,10 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
     gradient-trained layer's}. If no ridge beats the layer as it was, the layer is left unchanged.
     """
     before = normalised_rmse(model, val_source)
-    x, y = camera_features(model, train_source)
-    xv, yv = camera_features(model, val_source)
+    x, y, _ = camera_features(model, train_source)
+    xv, yv, val_unestimated = camera_features(model, val_source)
+    # The validation RMSE over all three components, as normalised_rmse: the model outputs 0 for the others.
+    val_count = yv.numel() * 3 // len(model.components)
     ones = torch.ones(len(x), 1, dtype=x.dtype)
     design = torch.cat([x, ones], dim=1)
     gram = design.T @ design
@@ -64,7 +72,7 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
         if rank is not None:
             weights, basis = _reduce_rank(weights, x, y, rank)
         prediction = torch.cat([xv, torch.ones(len(xv), 1, dtype=x.dtype)], dim=1) @ weights
-        scores[ridge] = float(torch.sqrt(torch.mean((prediction - yv) ** 2)))
+        scores[ridge] = float(torch.sqrt((torch.sum((prediction - yv) ** 2) + val_unestimated) / val_count))
         solutions[ridge] = (weights, basis if rank is not None else None)
     best = min(scores, key=scores.get)
     if scores[best] < before:

@@ -4,7 +4,8 @@ Per camera, the difference between the current image and the camera's reference 
 through the same CNN (3x3 convolutions with batch normalisation and ReLU, 2x max pooling, then fully connected
 layers with an activation and dropout) that yields `camera_features` (300) numbers per camera. The features of
 all cameras are concatenated in the order of `camera_ids` and a linear fusion layer maps them to rows x cols x 3
-bin forces. All cameras of all frames go through the CNN as one batch.
+bin forces (to the components the training data excites; the others come out as 0, see `estimated_components`). All
+cameras of all frames go through the CNN as one batch.
 
 One choice differs from the paper by default, measured (docs/learning.md): the fully connected layers use ReLU
 instead of the paper's sigmoid (`feature_activation`).
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -27,6 +29,8 @@ GREY_LEVELS = 255.0
 SATURATED = 255.0
 #: Brightness gains outside this range are clamped (a black or blinded camera gives no usable gain).
 GAIN_RANGE = (0.25, 4.0)
+#: The force components of a bin, in the order of the model's output.
+FORCE_COMPONENTS = ("fx", "fy", "fz")
 #: Activations of the fully connected layers: the paper's sigmoid, or ReLU. With ReLU the model reaches a fifth
 #: lower error, and fits its own training frames better too (docs/learning.md).
 FEATURE_ACTIVATIONS = {"sigmoid": torch.sigmoid, "relu": torch.relu}
@@ -164,11 +168,12 @@ class FusionLayer(nn.Module):
     """Linear map from the concatenated camera features to normalised bin forces.
 
     With `rank` set, the matrix is stored as a product of two thin matrices (still one linear map, of rank
-    <= `rank`): for the reference sensor a dense 1200 x 1950 matrix is 2.3 M weights (9 MB per stored copy),
-    the factored one at rank 512 is 1.6 M. The rank costs accuracy: the Fz maps of presses anywhere on the
-    surface need about 500 dimensions (projected onto their leading 384 principal components, the test split's
-    true maps are already 2.9 mN per bin off), and a factored layer also slowed the end-to-end training (rank
-    512: 3.84 mN per bin against 3.67 mN dense; docs/learning.md). The default is dense.
+    <= `rank`): for the reference sensor a dense 1200 x 1950 matrix (all three components) is 2.3 M weights (9 MB
+    per stored copy), the factored one at rank 512 is 1.6 M; for Fz alone, dense, 0.78 M. The rank costs
+    accuracy: the Fz maps of presses anywhere on the surface need about 500 dimensions (projected onto their leading
+    384 principal components, the test split's true maps are already 2.9 mN per bin off), and a factored layer also
+    slowed the end-to-end training (rank 512: 3.84 mN per bin against 3.67 mN dense; docs/learning.md). The default
+    is dense.
     """
 
     def __init__(self, in_features: int, out_features: int, rank: int | None):
@@ -201,14 +206,15 @@ def difference_images(images: torch.Tensor, reference: torch.Tensor) -> torch.Te
     only moves particles, which leaves the factor within about 1e-3 of 1 (docs/learning.md).
     """
     current = images.to(torch.float32)
-    reference = reference.to(torch.float32).expand_as(current)
-    unsaturated = (current < SATURATED).to(torch.float32)
-    weighted = reference * unsaturated
+    reference = reference.to(torch.float32)
+    weighted = torch.where(current < SATURATED, reference, 0.0)       # the reference where not saturated
     numerator = torch.sum(current * weighted, dim=(-2, -1), keepdim=True)
-    denominator = torch.sum(reference * weighted, dim=(-2, -1), keepdim=True)
+    denominator = torch.sum(weighted * weighted, dim=(-2, -1), keepdim=True)
     gain = torch.where(denominator > 0, numerator / torch.clamp(denominator, min=1.0), torch.ones_like(numerator))
     gain = torch.clamp(gain, GAIN_RANGE[0], GAIN_RANGE[1])
-    return (current / gain - reference) / GREY_LEVELS
+    # Both terms are scaled by the same kind of reciprocal, so an image equal to its reference (gain exactly 1)
+    # gives exactly 0.
+    return current * (1.0 / (gain * GREY_LEVELS)) - reference * (1.0 / GREY_LEVELS)
 
 
 class ForceFusionNet(nn.Module):
@@ -216,19 +222,29 @@ class ForceFusionNet(nn.Module):
 
     camera_ids: the cameras in input order (the fusion layer's feature blocks follow this order).
     force_scale_n: (3,) scale of (fx, fy, fz) used to normalise the targets; stored as a buffer.
+    components: the force components the model estimates (see `estimated_components`); the others come out as
+        exactly 0. The output always has all three.
     """
 
     def __init__(self, config: ModelConfig, camera_ids: tuple[str, ...] | list[str], rows: int, cols: int,
-                 force_scale_n: torch.Tensor | None = None):
+                 force_scale_n: torch.Tensor | None = None, components: tuple[str, ...] = FORCE_COMPONENTS):
         super().__init__()
         if len(camera_ids) < 1 or len(set(camera_ids)) != len(camera_ids):
             raise ValueError(f"ForceFusionNet: camera_ids must be non-empty and unique, got {list(camera_ids)}")
+        if not components or len(set(components)) != len(components) or set(components) - set(FORCE_COMPONENTS):
+            raise ValueError(f"ForceFusionNet: components must be distinct names from {list(FORCE_COMPONENTS)}, got "
+                             f"{list(components)}")
         self.config = config
         self.camera_ids = tuple(camera_ids)
         self.rows, self.cols = int(rows), int(cols)
+        self.components = tuple(c for c in FORCE_COMPONENTS if c in components)
+        # Output column of each of (fx, fy, fz): its column of the fusion layer, or the zero column appended last.
+        self.register_buffer("component_columns", torch.tensor(
+            [self.components.index(c) if c in self.components else len(self.components) for c in FORCE_COMPONENTS]),
+            persistent=False)
         self.cnn = CameraCNN(config)
-        self.fusion = FusionLayer(len(camera_ids) * config.camera_features, self.rows * self.cols * 3,
-                                  config.fusion_rank)
+        self.fusion = FusionLayer(len(camera_ids) * config.camera_features,
+                                  self.rows * self.cols * len(self.components), config.fusion_rank)
         scale = torch.ones(3) if force_scale_n is None else torch.as_tensor(force_scale_n, dtype=torch.float32)
         if scale.shape != (3,) or not bool(torch.all(torch.isfinite(scale) & (scale > 0))):
             raise ValueError(f"ForceFusionNet: force_scale_n must be 3 finite positive numbers, got {scale}")
@@ -242,11 +258,19 @@ class ForceFusionNet(nn.Module):
     def image_size(self) -> int:
         return self.config.image_size
 
+    @property
+    def component_indices(self) -> list[int]:
+        """Indices into (fx, fy, fz) of the estimated components."""
+        return [FORCE_COMPONENTS.index(c) for c in self.components]
+
     def fuse(self, camera_features: torch.Tensor) -> torch.Tensor:
         """(B * C, camera_features) in frame-major order -> (B, rows, cols, 3) normalised forces."""
         batch = camera_features.shape[0] // self.n_cameras
         out = self.fusion(camera_features.reshape(batch, self.n_cameras * self.config.camera_features))
-        return out.reshape(batch, self.rows, self.cols, 3)
+        out = out.reshape(batch, self.rows, self.cols, len(self.components))
+        if len(self.components) == len(FORCE_COMPONENTS):
+            return out
+        return torch.cat([out, torch.zeros_like(out[..., :1])], dim=-1).index_select(-1, self.component_columns)
 
     def forward_normalised(self, difference: torch.Tensor) -> torch.Tensor:
         """(B, C, H, W) float difference images (see `difference_images`) -> (B, rows, cols, 3) normalised."""
@@ -256,6 +280,18 @@ class ForceFusionNet(nn.Module):
     def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
         """images (B, C, H, W), reference (C, H, W): uint8 or float grey levels -> (B, rows, cols, 3) newtons."""
         return self.forward_normalised(difference_images(images, reference)) * self.force_scale_n
+
+
+def estimated_components(bin_forces_n: torch.Tensor | np.ndarray) -> tuple[str, ...]:
+    """The force components that are not zero in every sample of (N, rows, cols, 3) training forces.
+
+    A component the training data never excites (Fx and Fy of vertical presses) cannot be learnt: its fusion
+    weights come out exactly zero, and computing them would be two thirds of the fusion layer's work and of its
+    weights in every stored copy of the model (docs/learning.md). Such a component is left out, and the model
+    outputs exactly 0 for it, saying so in its model.json. All three if every component is zero (nothing to learn).
+    """
+    nonzero = np.any(np.asarray(bin_forces_n).reshape(-1, 3) != 0, axis=0)
+    return tuple(c for c, n in zip(FORCE_COMPONENTS, nonzero, strict=True) if n) or FORCE_COMPONENTS
 
 
 def force_scale_from_targets(bin_forces_n: torch.Tensor, floor_fraction: float = 0.01) -> torch.Tensor:

@@ -28,7 +28,7 @@ from tactile_fusion.data import DatasetMismatchError, FrameSet, load_dataset_fra
 from tactile_fusion.evaluation import evaluate
 from tactile_fusion.export import export_onnx, quantize_int8
 from tactile_fusion.inference import BACKENDS, load_predictor
-from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
+from tactile_fusion.model import ForceFusionNet, ModelConfig, estimated_components, force_scale_from_targets
 from tactile_fusion.plots import plot_fz_maps
 from tactile_fusion.training import TrainConfig, TrainResult, build_model, train_phases
 from tactile_sim import DatasetError, SceneError, load_scene
@@ -74,7 +74,8 @@ def train_model(frames: FrameSet, model_config: ModelConfig, train_config: Train
     train, val = frames.subset(split["train"]), frames.subset(split["val"])
     scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
     rows, cols = frames.bin_forces_n.shape[1:3]
-    model = build_model(model_config, frames.camera_ids, rows, cols, scale, train_config.seed)
+    model = build_model(model_config, frames.camera_ids, rows, cols, scale, train_config.seed,
+                        estimated_components(train.bin_forces_n))
     results = train_phases(model, train, val, train_config, checkpoint_dir, resume, progress)
     return model, results, split
 

@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from tactile_fusion.data import FrameSet
 from tactile_fusion.least_squares import fit_fusion
-from tactile_fusion.model import ForceFusionNet, ModelConfig
+from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 
 
@@ -36,14 +36,16 @@ class TrainConfig:
     layer (least_squares.py). The end-to-end phase stops early after `patience` epochs without a better validation
     RMSE; the head phase runs all its epochs (`head_phase`), without dropout (`head_dropout`; None: the model's
     rate). The head phase and the least-squares fit learn from the training frames and from a copy of them seen
-    through camera imperfections (`head_augmentation`: extra sensor noise up to `head_noise_sigma` grey levels on
-    all, defocus blur up to `head_blur_sigma_px` on a `head_blur_fraction` share). Measured against the dropout of
-    0.1 on clean frames alone that this replaced: the same error in distribution; on the effects scene six of eight
-    windows lose half to four fifths of their total-force error, the misaligned camera's doubles (docs/learning.md).
+    through camera imperfections (`head_augmentation`: one camera askew on a `head_misalign_fraction` share, defocus
+    blur up to `head_blur_sigma_px` on a `head_blur_fraction` share, extra sensor noise up to `head_noise_sigma`
+    grey levels on all). Measured against the dropout of 0.1 on clean frames alone that this replaced, noise and
+    blur alone: the same error in distribution; on the effects scene six of eight windows lose half to four fifths
+    of their total-force error, the misaligned camera's doubles, which the camera askew on a tenth of the frames
+    cuts six-fold (docs/learning.md).
     Modular recalibration (recalibration.py) trains like the head phase, on clean frames: `recalibration_phase`.
 
     The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 13 x 1017 end-to-end
-    steps; the head phase's 15 epochs on the frames and their imperfect copy make 15 x 509 steps): on the former
+    steps; the head phase's 30 epochs on the frames and their imperfect copy make 30 x 509 steps): on the former
     24 x 24 grid, half the frames, 26 end-to-end and 26 recalibration epochs made the same number of steps.
     """
 
@@ -54,13 +56,14 @@ class TrainConfig:
     min_learning_rate: float = 1e-5  # the learning rate follows a cosine from learning_rate down to this
     seed: int = 0
     loss_eps: float = 1e-8        # RMSE = sqrt(MSE + eps): finite gradient at zero error
-    head_epochs: int = 15         # second phase: conv trunk frozen, head trained on cached features
+    head_epochs: int = 30         # second phase: conv trunk frozen, head trained on cached features
     head_learning_rate: float = 4e-3
     head_batch_size: int = 64     # frames per head step: a head step is cheap, larger batches use the cores better
     head_dropout: float | None = 0.0  # dropout of the fully connected layers in the head phase; None: the model's
     head_noise_sigma: float = 1.2  # head phase's imperfect copy: extra sensor noise up to this (grey levels) ...
     head_blur_fraction: float = 0.2  # ... and defocus blur on this share of the frames ...
-    head_blur_sigma_px: float = 1.2  # ... of up to this sigma (pixels); noise 0 and blur 0: no copy
+    head_blur_sigma_px: float = 1.2  # ... of up to this sigma (pixels) ...
+    head_misalign_fraction: float = 0.1  # ... and one camera knocked askew on this share; all 0: no copy
     recalibration_epochs: int = 13  # modular recalibration: epochs of the last layers on cached features
 
     def __post_init__(self):
@@ -80,7 +83,8 @@ class TrainConfig:
 
     def head_augmentation(self) -> Augmentation:
         """The camera imperfections of the head phase's copy of the training frames."""
-        return Augmentation(self.head_noise_sigma, self.head_blur_fraction, self.head_blur_sigma_px)
+        return Augmentation(self.head_noise_sigma, self.head_blur_fraction, self.head_blur_sigma_px,
+                            self.head_misalign_fraction)
 
     def head_phase(self) -> TrainConfig:
         """The settings of the head phase: its own epochs, learning rate and batch size, the rest shared.
@@ -150,10 +154,10 @@ class TrainResult:
 
 
 def build_model(config: ModelConfig, camera_ids, rows: int, cols: int, force_scale_n: torch.Tensor,
-                seed: int) -> ForceFusionNet:
+                seed: int, components: tuple[str, ...] = FORCE_COMPONENTS) -> ForceFusionNet:
     """A freshly initialised model; the initial weights depend only on `seed`."""
     torch.manual_seed(seed)
-    return ForceFusionNet(config, camera_ids, rows, cols, force_scale_n)
+    return ForceFusionNet(config, camera_ids, rows, cols, force_scale_n, components)
 
 
 def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int = 1) -> list[np.ndarray]:
@@ -283,7 +287,8 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
 
 #: Head-phase settings of a checkpoint written before they existed: dropout at the model's rate, no imperfect copy.
-SETTINGS_BEFORE_THEY_EXISTED = {"head_dropout": None, "head_noise_sigma": 0.0, "head_blur_fraction": 0.0}
+SETTINGS_BEFORE_THEY_EXISTED = {"head_dropout": None, "head_noise_sigma": 0.0, "head_blur_fraction": 0.0,
+                                "head_misalign_fraction": 0.0}
 
 
 def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tactile_fusion.data import FrameSet
-from tactile_fusion.model import ModelConfig
+from tactile_fusion.model import ForceFusionNet, ModelConfig
 
 ROWS, COLS, SIZE = 3, 4, 16
 CAMERAS = ("left", "right")
@@ -41,6 +41,20 @@ def tiny_config() -> ModelConfig:
 @pytest.fixture
 def frames() -> FrameSet:
     return synthetic_frames(48)
+
+
+@pytest.fixture(scope="session")
+def fz_only_copy():
+    """A function: a dense-fusion model -> the same model estimating Fz alone (its fusion rows of Fz, the rest of its
+    weights as they are), so the Fz it outputs is exactly the original's."""
+    def copy(model: ForceFusionNet) -> ForceFusionNet:
+        state = model.state_dict()
+        for name in ("fusion.expand.weight", "fusion.expand.bias"):
+            state[name] = state[name][2::3]
+        fz = ForceFusionNet(model.config, model.camera_ids, model.rows, model.cols, model.force_scale_n, ("fz",))
+        fz.load_state_dict(state)
+        return fz.eval()
+    return copy
 
 
 @pytest.fixture(scope="session")

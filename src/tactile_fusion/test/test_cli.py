@@ -36,6 +36,8 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     for name in (MODEL_JSON, STATE_DICT, TRAINING_JSON, METRICS_JSON, *ONNX_FILES.values()):
         assert (out / name).is_file(), name
     assert not list(out.glob("checkpoint_*.pt"))
+    # The default scene's first 60 frames are at rest: no force to learn at all, so the model keeps all three.
+    assert json.loads((out / MODEL_JSON).read_text())["components"] == ["fx", "fy", "fz"]
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
     assert set(training["phases"]) == {"end_to_end", "head", "fusion_fit"}
@@ -43,6 +45,7 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     assert set(metrics["backends"]) == {"onnxruntime_fp32", "onnxruntime_int8", "onnxruntime_fp16", "torch_fp32",
                                         "torch_fp16"}
     assert "onnxruntime_fp32" in result.stdout and "model written to" in result.stdout
+    assert "it estimates" not in result.stdout
 
 
 def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):

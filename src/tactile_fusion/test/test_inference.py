@@ -1,12 +1,14 @@
 """ONNX export and the inference backends behind one interface: agreement, input checks, precisions."""
 
+import json
+
 import numpy as np
 import onnx
 import pytest
 import torch
 
 from tactile_description import load_sensor
-from tactile_fusion.artifacts import ONNX_FILES, ModelFileError, check_model_fits, load_model, save_model
+from tactile_fusion.artifacts import MODEL_JSON, ONNX_FILES, ModelFileError, check_model_fits, load_model, save_model
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
 from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig
@@ -157,6 +159,39 @@ def test_missing_model_and_unknown_backend_are_explained(tmp_path, model_dir):
         load_predictor(out, "torch", "int8")
     with pytest.raises(ValueError, match="backend must be one of"):
         load_predictor(out, "tensorrt")
+
+
+def test_a_model_of_fz_alone_exports_and_runs_in_every_backend_and_precision(model_dir, tmp_path, fz_only_copy):
+    out, frames = model_dir
+    model = load_model(out)
+    fz = fz_only_copy(model)
+    save_model(fz, tmp_path, "synthetic")
+    export_onnx(fz, tmp_path / ONNX_FILES["fp32"])
+    export_onnx(fz, tmp_path / ONNX_FILES["fp16"], "fp16")
+    quantize_int8(tmp_path / ONNX_FILES["fp32"], tmp_path / ONNX_FILES["int8"])
+    assert json.loads((tmp_path / MODEL_JSON).read_text())["components"] == ["fz"]
+    assert load_model(tmp_path).components == ("fz",)
+    full = load_predictor(out, "torch").predict_batch(frames.images, frames.reference)
+    for backend, precision in (("torch", "fp32"), ("torch", "fp16"), ("onnxruntime", "fp32"),
+                               ("onnxruntime", "fp16"), ("onnxruntime", "int8")):
+        predictor = load_predictor(tmp_path, backend, precision)
+        assert predictor.components == ("fz",)
+        predicted = predictor.predict_batch(frames.images, frames.reference)
+        assert np.array_equal(predicted[..., :2], np.zeros_like(predicted[..., :2])), (backend, precision)
+        tolerance = 1e-5 if precision == "fp32" else 1e-2
+        np.testing.assert_allclose(predicted[..., 2], full[..., 2], rtol=0, atol=tolerance,
+                                   err_msg=f"{backend} {precision}")
+
+
+def test_a_model_json_from_before_components_could_be_left_out_estimates_all_three(model_dir, tmp_path):
+    out, frames = model_dir
+    save_model(load_model(out), tmp_path)
+    description = json.loads((tmp_path / MODEL_JSON).read_text())
+    del description["components"]
+    (tmp_path / MODEL_JSON).write_text(json.dumps(description))
+    assert load_model(tmp_path).components == ("fx", "fy", "fz")
+    export_onnx(load_model(tmp_path), tmp_path / ONNX_FILES["fp32"])
+    assert load_predictor(tmp_path, "onnxruntime").components == ("fx", "fy", "fz")
 
 
 def test_saved_model_reloads_identically(model_dir, tmp_path):

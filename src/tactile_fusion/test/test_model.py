@@ -14,6 +14,7 @@ from tactile_fusion.model import (
     FusionLayer,
     ModelConfig,
     difference_images,
+    estimated_components,
     force_scale_from_targets,
 )
 from tactile_fusion.training import rmse_loss
@@ -183,6 +184,46 @@ def test_bad_camera_ids_and_force_scale_are_rejected(tiny_config):
         ForceFusionNet(tiny_config, ("a", "a"), 3, 4)
     with pytest.raises(ValueError, match="force_scale_n"):
         ForceFusionNet(tiny_config, ("a",), 3, 4, torch.tensor([1.0, 0.0, 1.0]))
+
+
+def test_a_model_of_fz_alone_computes_a_third_of_the_fusion_and_outputs_exact_zeros_for_fx_and_fy(tiny_config,
+                                                                                                  fz_only_copy):
+    torch.manual_seed(0)
+    model = ForceFusionNet(tiny_config, ("a", "b"), 3, 4).eval()
+    fz = fz_only_copy(model)
+    assert fz.components == ("fz",) and fz.component_indices == [2]
+    assert fz.fusion.expand.out_features == 3 * 4 == model.fusion.expand.out_features // 3
+    images = torch.randint(0, 256, (5, 2, 16, 16), dtype=torch.uint8)
+    reference = torch.randint(0, 256, (2, 16, 16), dtype=torch.uint8)
+    with torch.no_grad():
+        full, alone = model(images, reference), fz(images, reference)
+    assert alone.shape == full.shape == (5, 3, 4, 3)
+    assert torch.equal(alone[..., 2], full[..., 2]) and bool(full[..., 2].abs().max() > 0)
+    assert torch.equal(alone[..., :2], torch.zeros(5, 3, 4, 2))
+
+
+def test_a_model_can_leave_out_any_components_and_keeps_the_output_order(tiny_config):
+    model = ForceFusionNet(tiny_config, ("a",), 2, 2, components=("fz", "fx")).eval()
+    assert model.components == ("fx", "fz")  # the output's order, whatever order they were named in
+    with torch.no_grad():
+        model.fusion.expand.bias.copy_(torch.tensor([1.0, 2.0] * 4))  # (fx, fz) of each bin
+        out = model.fuse(torch.zeros(1, tiny_config.camera_features))
+    torch.testing.assert_close(out, torch.tensor([1.0, 0.0, 2.0]).expand(1, 2, 2, 3))
+
+
+@pytest.mark.parametrize("components", [(), ("fz", "fz"), ("fz", "tz")])
+def test_bad_components_are_rejected(tiny_config, components):
+    with pytest.raises(ValueError, match="components must be distinct names from"):
+        ForceFusionNet(tiny_config, ("a",), 3, 4, components=components)
+
+
+def test_the_components_estimated_are_those_the_training_forces_excite():
+    forces = np.zeros((6, 3, 4, 3), dtype=np.float32)
+    assert estimated_components(forces) == ("fx", "fy", "fz")  # nothing to learn: all three, as before
+    forces[2, 1, 1, 2] = 0.4
+    assert estimated_components(forces) == ("fz",)             # vertical presses
+    forces[5, 0, 3, 0] = -1e-6
+    assert estimated_components(torch.from_numpy(forces)) == ("fx", "fz")
 
 
 def test_config_round_trips_through_a_dict():

@@ -9,6 +9,7 @@ import torch
 from tactile_fusion.data import split_indices
 from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.model import force_scale_from_targets
+from tactile_fusion.pipeline import train_model
 from tactile_fusion.recalibration import add_camera, fraction_subset, predict_torch, recalibrate
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 from tactile_fusion.training import TrainConfig, build_model, fit, train_phases
@@ -19,10 +20,10 @@ def splits(frames):
     return frames.subset(split["train"]), frames.subset(split["val"])
 
 
-def model_for(frames, config, seed=0):
+def model_for(frames, config, seed=0, components=("fx", "fy", "fz")):
     train, _ = splits(frames)
     scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
-    return build_model(config, frames.camera_ids, 3, 4, scale, seed)
+    return build_model(config, frames.camera_ids, 3, 4, scale, seed, components)
 
 
 def test_cached_source_predicts_what_the_whole_network_predicts(frames, tiny_config):
@@ -63,6 +64,19 @@ def test_rank_limited_fit_with_fewer_frames_than_the_rank_stays_finite(frames, t
     report = fit_fusion(model, *few, ridges=(1e-3,))
     assert np.isfinite(report["val_rmse"]["0.001"])
     assert all(torch.isfinite(p).all() for p in model.fusion.parameters())
+
+
+@pytest.mark.parametrize("components", [("fx", "fy", "fz"), ("fz",)])
+def test_least_squares_scores_are_the_validation_rmse_of_the_fitted_model(frames, tiny_config, components):
+    """Also for a model that leaves components out: the synthetic frames have Fx and Fy, which it predicts as 0, and
+    its score must count them as the model's own validation RMSE does."""
+    model = model_for(frames, tiny_config, components=components).eval()
+    train, val = splits(frames)
+    sources = [CachedSource(model, part, "trunk") for part in (train, val)]
+    report = fit_fusion(model, *sources)
+    assert report["ridge"] is not None
+    assert report["val_rmse"][str(report["ridge"])] == pytest.approx(normalised_rmse(model, sources[1]), rel=1e-5)
+    assert model.fusion.expand.out_features == 3 * 4 * len(components)
 
 
 def test_least_squares_keeps_the_layer_when_no_ridge_helps(frames, tiny_config):
@@ -181,6 +195,25 @@ def test_augmented_blur_defocuses_the_asked_share_of_frames_only():
             Augmentation(**{field: bad})
 
 
+def test_augmented_misalignment_knocks_one_camera_askew_in_the_asked_share_of_frames():
+    images = np.random.default_rng(0).integers(0, 256, (200, 3, 24, 24), dtype=np.uint8)
+    askew = Augmentation(misalign_fraction=0.3)
+    moved = askew.apply(images, np.random.default_rng(6))
+    assert askew.active
+    np.testing.assert_array_equal(moved, askew.apply(images, np.random.default_rng(6)))
+    changed = np.any(moved != images, axis=(2, 3))                       # (frames, cameras)
+    assert 40 < changed.any(axis=1).sum() < 80 and changed.sum(axis=1).max() == 1  # about 30 %, one camera each
+    assert len(set(np.flatnonzero(changed) % 3)) == 3                    # any camera can be the one
+    # The change is the warp alone: a camera knocked by nothing stays as it was, pixel for pixel.
+    still = Augmentation(misalign_fraction=1.0, misalign_shift_px=0.0, misalign_rotation_deg=0.0)
+    np.testing.assert_array_equal(still.apply(images, np.random.default_rng(6)), images)
+    for field, bad in (("misalign_fraction", -0.1), ("misalign_shift_px", 20.0), ("misalign_rotation_deg", -1.0)):
+        with pytest.raises(ValueError, match=f"Augmentation.{field} must be"):
+            Augmentation(**{field: bad})
+    with pytest.raises(ValueError, match="TrainConfig.head_misalign_fraction must be"):
+        TrainConfig(head_misalign_fraction=2.0)
+
+
 def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames, tiny_config):
     train, val = splits(frames)
     model = model_for(frames, tiny_config).eval()
@@ -220,6 +253,8 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
         TrainConfig(max_epochs=2, batch_size=8))
     grown = add_camera(base, ("left", "right"))
     np.testing.assert_allclose(predict_torch(grown, frames), predict_torch(base, base_frames), atol=1e-6)
+    assert add_camera(model_for(base_frames, tiny_config, components=("fz",)), ("left", "right")).components == \
+        ("fz",)
     trainable = {name for name, p in grown.named_parameters() if p.requires_grad}
     assert trainable and all(n.startswith(("cnn.last_layer", "fusion")) for n in trainable)
 
@@ -234,6 +269,16 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
                            grown.state_dict()["cnn.last_layer.linear.weight"])
     with pytest.raises(ValueError, match="at least one more"):
         add_camera(base, ("left",))
+
+
+def test_training_leaves_out_the_components_the_training_forces_never_excite(frames, tiny_config):
+    vertical = frames.subset(np.arange(len(frames)))
+    vertical.bin_forces_n[..., :2] = 0.0  # presses without shear
+    config = TrainConfig(max_epochs=1, batch_size=8, head_epochs=1)
+    model, _, _ = train_model(vertical, tiny_config, config, None, False, False)
+    assert model.components == ("fz",) and model.fusion.expand.out_features == 3 * 4
+    assert np.all(predict_torch(model, vertical)[..., :2] == 0.0)
+    assert train_model(frames, tiny_config, config, None, False, False)[0].components == ("fx", "fy", "fz")
 
 
 def test_fraction_subsets_are_nested_and_seeded(frames):

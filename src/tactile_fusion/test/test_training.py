@@ -120,18 +120,19 @@ def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_train
     """Head settings whose default changed count as what training did before they existed: no copy, the model's
     dropout. A checkpoint of the time when --head-noise-sigma replaced the frames cannot be resumed at all."""
     old_behaviour = TrainConfig(max_epochs=2, batch_size=8, head_dropout=None, head_noise_sigma=0.0,
-                                head_blur_fraction=0.0)
+                                head_blur_fraction=0.0, head_misalign_fraction=0.0)
     checkpoint = tmp_path / "checkpoint.pt"
 
     def before_the_head_settings(saved):
-        for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px"):
+        for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px",
+                    "head_misalign_fraction"):
             del saved[key]
 
     checkpoint_as_written_then(frames, tiny_config, old_behaviour, checkpoint, before_the_head_settings)
     with pytest.raises(ValueError, match="same settings"):  # today's defaults train another head
         trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_dropout=0.0, head_noise_sigma=1.2,
-                                                         head_blur_fraction=0.2), checkpoint_path=checkpoint,
-                resume=True)
+                                                         head_blur_fraction=0.2, head_misalign_fraction=0.1),
+                checkpoint_path=checkpoint, resume=True)
     _, result = trained(frames, tiny_config, old_behaviour, checkpoint_path=checkpoint, resume=True)
     assert result.epochs_run == 2
 

@@ -101,6 +101,13 @@ def _warp(image: np.ndarray, matrix: np.ndarray) -> np.ndarray:
                           borderMode=cv2.BORDER_REPLICATE)
 
 
+def misalign(image: np.ndarray, shift_px: Sequence[float], rotation_deg: float) -> np.ndarray:
+    """One camera image (H, W), float32 or uint8, seen by a camera knocked off its pose (see CameraMisalignment):
+    turned by `rotation_deg` about the image centre, then shifted by `shift_px` (x, y) pixels, bilinear, edges
+    replicated. The same dtype comes back."""
+    return _warp(image, _warp_matrix(image.shape, shift_px, rotation_deg))
+
+
 @dataclass(frozen=True)
 class CameraMisalignment(EffectSpec):
     """A camera knocked off its calibrated pose after the reference frame was taken.
