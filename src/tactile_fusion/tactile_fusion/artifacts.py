@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorDescription
-from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig
+from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig, checked_components
 
 MODEL_JSON = "model.json"
 STATE_DICT = "model.pt"
@@ -93,7 +93,10 @@ def read_model_json(model_dir: str | Path) -> dict:
 def model_components(description: dict) -> tuple[str, ...]:
     """The force components a model.json says the model estimates; all three for a model saved before models could
     leave one out."""
-    return tuple(description.get("components", FORCE_COMPONENTS))
+    try:
+        return checked_components(description.get("components", FORCE_COMPONENTS))
+    except ValueError as exc:
+        raise ModelFileError(f"{MODEL_JSON}: {exc}") from exc
 
 
 def load_model(model_dir: str | Path) -> ForceFusionNet:

@@ -36,7 +36,7 @@ from tactile_fusion.artifacts import (
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
-from tactile_fusion.model import FEATURE_ACTIVATIONS, FORCE_COMPONENTS, ModelConfig
+from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig, left_out_components
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX, Augmentation
 from tactile_fusion.training import CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
@@ -105,9 +105,9 @@ def cmd_train(args) -> int:
     print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
     components = model_components(read_model_json(args.out))
-    if len(components) < len(FORCE_COMPONENTS):
+    if left_out_components(components):
         print(f"it estimates {', '.join(components)} only: the training data has no "
-              f"{', '.join(c for c in FORCE_COMPONENTS if c not in components)}, which the model outputs as 0")
+              f"{', '.join(left_out_components(components))}, which the model outputs as 0")
     return 0
 
 

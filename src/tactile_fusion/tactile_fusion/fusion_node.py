@@ -40,7 +40,7 @@ from tactile_description import load_sensor
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ProcessingLoad, ReferenceFrames
-from tactile_fusion.model import FORCE_COMPONENTS
+from tactile_fusion.model import left_out_components
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: Default `markers_rate_hz`: enough for a display (see above).
@@ -77,10 +77,10 @@ class FusionNode(Node):
         self.create_service(Trigger, "~/capture_reference", self.on_capture_reference)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
                                f"the reference from the next {reference_bundles} bundles: do not touch")
-        unestimated = [c for c in FORCE_COMPONENTS if c not in self.predictor.components]
-        if unestimated:
+        left_out = left_out_components(self.predictor.components)
+        if left_out:
             self.get_logger().warning(f"the model estimates {', '.join(self.predictor.components)} only: "
-                                      f"{', '.join(unestimated)} are published as 0 (its training data had none)")
+                                      f"{', '.join(left_out)} are published as 0 (its training data had none)")
 
     def on_capture_reference(self, _request, response):
         self.reference.reset()

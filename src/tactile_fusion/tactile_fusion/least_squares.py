@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tactile_fusion.model import ForceFusionNet
+from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, left_out_components
 from tactile_fusion.sources import normalised_rmse
 
 #: Candidate ridges, relative to the number of training frames; features are of order 1 (sigmoid: in (0, 1), ReLU:
@@ -37,7 +37,7 @@ def camera_features(model: ForceFusionNet, source, batch_size: int = 256
     dropout, batch-norm running statistics)."""
     model.eval()
     estimated = model.component_indices
-    others = [i for i in range(3) if i not in estimated]
+    others = [FORCE_COMPONENTS.index(c) for c in left_out_components(model.components)]
     features, targets, unestimated = [], [], 0.0
     for start in range(0, len(source), batch_size):
         idx = np.arange(start, min(start + batch_size, len(source)))

@@ -212,7 +212,7 @@ def difference_images(images: torch.Tensor, reference: torch.Tensor) -> torch.Te
     denominator = torch.sum(weighted * weighted, dim=(-2, -1), keepdim=True)
     gain = torch.where(denominator > 0, numerator / torch.clamp(denominator, min=1.0), torch.ones_like(numerator))
     gain = torch.clamp(gain, GAIN_RANGE[0], GAIN_RANGE[1])
-    # Both terms are scaled by the same kind of reciprocal, so an image equal to its reference (gain exactly 1)
+    # Both terms are scaled by the same kind of reciprocal, so a uint8 image equal to its reference (gain exactly 1)
     # gives exactly 0.
     return current * (1.0 / (gain * GREY_LEVELS)) - reference * (1.0 / GREY_LEVELS)
 
@@ -231,13 +231,10 @@ class ForceFusionNet(nn.Module):
         super().__init__()
         if len(camera_ids) < 1 or len(set(camera_ids)) != len(camera_ids):
             raise ValueError(f"ForceFusionNet: camera_ids must be non-empty and unique, got {list(camera_ids)}")
-        if not components or len(set(components)) != len(components) or set(components) - set(FORCE_COMPONENTS):
-            raise ValueError(f"ForceFusionNet: components must be distinct names from {list(FORCE_COMPONENTS)}, got "
-                             f"{list(components)}")
         self.config = config
         self.camera_ids = tuple(camera_ids)
         self.rows, self.cols = int(rows), int(cols)
-        self.components = tuple(c for c in FORCE_COMPONENTS if c in components)
+        self.components = checked_components(components)
         # Output column of each of (fx, fy, fz): its column of the fusion layer, or the zero column appended last.
         self.register_buffer("component_columns", torch.tensor(
             [self.components.index(c) if c in self.components else len(self.components) for c in FORCE_COMPONENTS]),
@@ -280,6 +277,20 @@ class ForceFusionNet(nn.Module):
     def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
         """images (B, C, H, W), reference (C, H, W): uint8 or float grey levels -> (B, rows, cols, 3) newtons."""
         return self.forward_normalised(difference_images(images, reference)) * self.force_scale_n
+
+
+def checked_components(components) -> tuple[str, ...]:
+    """A list of force components to estimate, checked (distinct names from FORCE_COMPONENTS, at least one) and put
+    in the output's order."""
+    names = list(components) if isinstance(components, (list, tuple)) else None
+    if not names or len(set(names)) != len(names) or set(names) - set(FORCE_COMPONENTS):
+        raise ValueError(f"components must be distinct names from {list(FORCE_COMPONENTS)}, got {components!r}")
+    return tuple(c for c in FORCE_COMPONENTS if c in names)
+
+
+def left_out_components(components: tuple[str, ...]) -> tuple[str, ...]:
+    """The force components a model with these estimated components outputs as 0."""
+    return tuple(c for c in FORCE_COMPONENTS if c not in components)
 
 
 def estimated_components(bin_forces_n: torch.Tensor | np.ndarray) -> tuple[str, ...]:

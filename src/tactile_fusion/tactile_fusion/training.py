@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from tactile_fusion.data import FrameSet
 from tactile_fusion.least_squares import fit_fusion
-from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig
+from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig, checked_components
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 
 
@@ -32,7 +32,7 @@ class TrainConfig:
 
     Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully connected
     layers and fusion) alone for up to `head_epochs` on cached conv features (an epoch over the frames and their
-    imperfect copy costs about a sixth of an end-to-end one); then the exact least-squares fit of the linear fusion
+    imperfect copy costs a sixth to a ninth of an end-to-end one); then the exact least-squares fit of the linear fusion
     layer (least_squares.py). The end-to-end phase stops early after `patience` epochs without a better validation
     RMSE; the head phase runs all its epochs (`head_phase`), without dropout (`head_dropout`; None: the model's
     rate). The head phase and the least-squares fit learn from the training frames and from a copy of them seen
@@ -257,7 +257,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
     Why phases: an end-to-end step spends almost all its time in the convolutions at full resolution, while
     the head (fully connected layers and fusion) needs many more epochs than the conv filters to converge; with the
-    trunk frozen its output is computed once and a head epoch costs a sixth of an end-to-end one or less. And the
+    trunk frozen its output is computed once and a head epoch costs a sixth to a ninth of an end-to-end one. And the
     fusion layer is linear: its exact least-squares weights for the final features beat what gradient steps
     reach (docs/learning.md). Each gradient phase keeps its own checkpoint in `checkpoint_dir`, so an
     interrupted run resumes in either phase (the least-squares fit is deterministic and takes seconds).
@@ -299,6 +299,7 @@ def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     torch.save({"model": model.state_dict(), "model_config": model.config.to_dict(),
+                "components": list(model.components),
                 "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
                 "train_config": asdict(config), "state": state}, tmp)
     os.replace(tmp, path)  # atomic: an interruption never leaves a half-written checkpoint
@@ -311,6 +312,12 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
         raise CheckpointMismatchError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, "
                                       f"not {model.config.to_dict()}: resume with the same model settings or delete "
                                       "the checkpoint")
+    # Checkpoints written before models could leave components out estimated all three.
+    components = checked_components(checkpoint.get("components", FORCE_COMPONENTS))
+    if components != model.components:
+        raise CheckpointMismatchError(f"checkpoint {path} was written for a model estimating {list(components)}, but "
+                                      f"this one estimates {list(model.components)} (the components its training "
+                                      "data excites): delete the checkpoint to start afresh")
     # Settings added since the checkpoint was written count as what training did without them: their defaults, or
     # for the head phase's settings whose default changed, the value that reproduces the old behaviour.
     saved = checkpoint["train_config"]

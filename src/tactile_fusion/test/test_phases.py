@@ -67,16 +67,18 @@ def test_rank_limited_fit_with_fewer_frames_than_the_rank_stays_finite(frames, t
 
 
 @pytest.mark.parametrize("components", [("fx", "fy", "fz"), ("fz",)])
-def test_least_squares_scores_are_the_validation_rmse_of_the_fitted_model(frames, tiny_config, components):
+@pytest.mark.parametrize("rank", [None, 2])
+def test_least_squares_scores_are_the_validation_rmse_of_the_fitted_model(frames, tiny_config, components, rank):
     """Also for a model that leaves components out: the synthetic frames have Fx and Fy, which it predicts as 0, and
     its score must count them as the model's own validation RMSE does."""
-    model = model_for(frames, tiny_config, components=components).eval()
+    model = model_for(frames, replace(tiny_config, fusion_rank=rank), components=components).eval()
     train, val = splits(frames)
     sources = [CachedSource(model, part, "trunk") for part in (train, val)]
     report = fit_fusion(model, *sources)
     assert report["ridge"] is not None
     assert report["val_rmse"][str(report["ridge"])] == pytest.approx(normalised_rmse(model, sources[1]), rel=1e-5)
     assert model.fusion.expand.out_features == 3 * 4 * len(components)
+    assert np.all(predict_torch(model, val)[..., :3 - len(components)] == 0.0)
 
 
 def test_least_squares_keeps_the_layer_when_no_ridge_helps(frames, tiny_config):
@@ -253,8 +255,10 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
         TrainConfig(max_epochs=2, batch_size=8))
     grown = add_camera(base, ("left", "right"))
     np.testing.assert_allclose(predict_torch(grown, frames), predict_torch(base, base_frames), atol=1e-6)
-    assert add_camera(model_for(base_frames, tiny_config, components=("fz",)), ("left", "right")).components == \
-        ("fz",)
+    fz_base = model_for(base_frames, tiny_config, components=("fz",)).eval()
+    fz_grown = add_camera(fz_base, ("left", "right"))
+    assert fz_grown.components == ("fz",)
+    np.testing.assert_allclose(predict_torch(fz_grown, frames), predict_torch(fz_base, base_frames), atol=1e-6)
     trainable = {name for name, p in grown.named_parameters() if p.requires_grad}
     assert trainable and all(n.startswith(("cnn.last_layer", "fusion")) for n in trainable)
 

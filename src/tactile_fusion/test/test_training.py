@@ -146,6 +146,23 @@ def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_train
                 checkpoint_path=checkpoint, resume=True)
 
 
+def test_a_checkpoint_of_a_model_estimating_other_components_is_refused_saying_why(frames, tiny_config, tmp_path):
+    """A checkpoint from before models could leave components out estimated all three: resuming it for a model of Fz
+    alone (vertical presses) names the cause instead of a size mismatch; the model it was written for resumes."""
+    checkpoint = tmp_path / "checkpoint.pt"
+    config = TrainConfig(max_epochs=2, batch_size=8)
+    checkpoint_as_written_then(frames, tiny_config, config, checkpoint, lambda saved: None)
+    saved = torch.load(checkpoint, weights_only=False)
+    assert saved.pop("components") == ["fx", "fy", "fz"]
+    torch.save(saved, checkpoint)
+    train, val, scale = sources(frames)
+    fz = build_model(tiny_config, frames.camera_ids, 3, 4, scale, config.seed, ("fz",))
+    with pytest.raises(ValueError, match=r"estimating \['fx', 'fy', 'fz'\], but this one estimates \['fz'\]"):
+        fit(fz, train, val, config, checkpoint_path=checkpoint, resume=True)
+    _, result = trained(frames, tiny_config, config, checkpoint_path=checkpoint, resume=True)
+    assert result.epochs_run == 2
+
+
 def test_resuming_a_model_with_another_activation_is_refused(frames, tiny_config, tmp_path):
     """Same weight shapes, another function: load_state_dict alone would accept the checkpoint."""
     checkpoint = tmp_path / "checkpoint.pt"
