@@ -84,7 +84,7 @@ def _train_config(args) -> TrainConfig:
                        head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
                        head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma,
                        head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px,
-                       head_misalign_fraction=args.head_misalign_fraction)
+                       head_misalign_fraction=args.head_misalign_fraction, head_cycles=args.head_cycles)
 
 
 def cmd_train(args) -> int:
@@ -230,6 +230,10 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-epochs", type=int, default=train.head_epochs,
                         help="then at most this many epochs of the head alone on cached conv features (default "
                         "%(default)s, sized like --epochs)")
+    parser.add_argument("--head-cycles", type=int, default=train.head_cycles,
+                        help="run the head phase and the least-squares fit this many times, each from the one before "
+                        "with a new imperfect copy (default %(default)s; 2 with --head-epochs 15 costs about as much "
+                        "as the default, see docs/learning.md)")
     parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per end-to-end step")
     parser.add_argument("--learning-rate", type=float, default=train.learning_rate)
     parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size,

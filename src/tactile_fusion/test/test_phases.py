@@ -121,6 +121,37 @@ def test_train_phases_run_head_and_fusion_fit_and_resume_in_the_head_phase(frame
         assert torch.equal(value, resumed.state_dict()[key]), key
 
 
+def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_config, tmp_path):
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=1, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=2, head_cycles=2)
+    two = model_for(frames, tiny_config)
+    results = train_phases(two, train, val, config)
+    assert set(results) == {"end_to_end", "head", "fusion_fit", "head_2", "fusion_fit_2"}
+    assert results["head_2"].epochs_run == 3
+    # The second cycle starts where the first one's fit left the model: its initial validation error is the fit's.
+    assert results["head_2"].initial_val_rmse == pytest.approx(min(results["fusion_fit"]["val_rmse"].values()))
+
+    class Interrupt(Exception):
+        pass
+
+    def interrupt_in_the_second_cycle(epoch, record):
+        if len(record_epochs) == 5:  # 1 end-to-end epoch, 3 head epochs, then the 2nd cycle's first
+            raise Interrupt
+        record_epochs.append(epoch)
+
+    record_epochs = []
+    with pytest.raises(Interrupt):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path,
+                     on_epoch_end=interrupt_in_the_second_cycle)
+    assert (tmp_path / "checkpoint_head_2.pt").exists()
+    resumed = model_for(frames, tiny_config)
+    train_phases(resumed, train, val, config, tmp_path, resume=True)
+    for key, value in two.state_dict().items():
+        assert torch.equal(value, resumed.state_dict()[key]), key
+    with pytest.raises(ValueError, match="TrainConfig.head_cycles must be >= 1"):
+        TrainConfig(head_cycles=0)
+
+
 def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(frames, tiny_config):
     train, val = splits(frames)
     model = model_for(frames, tiny_config)
