@@ -105,9 +105,10 @@ def cmd_train(args) -> int:
     print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
     components = model_components(read_model_json(args.out))
-    if left_out_components(components):
-        print(f"it estimates {', '.join(components)} only: the training data has no "
-              f"{', '.join(left_out_components(components))}, which the model outputs as 0")
+    left_out = left_out_components(components)
+    if left_out:
+        print(f"it estimates {', '.join(components)} only: the training data has no {', '.join(left_out)}, which "
+              "the model outputs as 0")
     return 0
 
 

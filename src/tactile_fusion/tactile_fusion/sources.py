@@ -65,11 +65,19 @@ class CachedSource:
         if cut not in CUTS:
             raise ValueError(f"CachedSource: cut must be one of {CUTS}, got {cut!r}")
         self.cut = cut
+        self.batch_size = batch_size
         self.force_scale_n = model.force_scale_n
         self.features = self._front(model, frames, cut, batch_size)                 # (N, C, features at the cut)
         self.targets = torch.from_numpy(np.asarray(frames.bin_forces_n))            # (N, rows, cols, 3), once
+        self.redraw_copy(model, frames, augmentation, seed)
+
+    def redraw_copy(self, model: ForceFusionNet, frames: FrameSet, augmentation: Augmentation | None,
+                    seed: int) -> None:
+        """Replace the imperfect copy (if any) by one drawn from `seed`, as the constructor would with this seed; the
+        frames' own features, which do not change, are kept rather than computed again."""
+        self.features = self.features[:len(self.targets)]
         if augmentation is not None and augmentation.active:
-            copy = self._front(model, frames, cut, batch_size, lambda images, start: augmentation.apply(
+            copy = self._front(model, frames, self.cut, self.batch_size, lambda images, start: augmentation.apply(
                 images, np.random.default_rng([seed, start])))
             self.features = torch.cat([self.features, copy])
 

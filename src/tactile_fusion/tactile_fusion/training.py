@@ -275,17 +275,17 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
                                  desc="train end-to-end")}
+    cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation(), seed=config.seed)
     cached_val = CachedSource(model, val, "trunk")
     for cycle in range(1, config.head_cycles + 1):
         suffix = "" if cycle == 1 else f"_{cycle}"
-        cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation(),
-                                    seed=config.seed + cycle - 1)
+        if cycle > 1:
+            cached_train.redraw_copy(model, train, config.head_augmentation(), config.seed + cycle - 1)
         if config.head_epochs:
             results[f"head{suffix}"] = _head_phase(model, cached_train, cached_val, config,
                                                    _phase_checkpoint(checkpoint_dir, f"head{suffix}"), resume,
                                                    progress, on_epoch_end)
         results[f"fusion_fit{suffix}"] = fit_fusion(model, cached_train, cached_val)
-        del cached_train  # its features go before the next cycle's are computed
     model.eval()
     return results
 

@@ -259,9 +259,17 @@ def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames,
     assert torch.equal(both.target(np.arange(2 * n)), torch.cat([clean.target(np.arange(n))] * 2))
     torch.testing.assert_close(CachedSource(model, train, "trunk", augmentation=augmentation, seed=2).features,
                                both.features, rtol=0, atol=0)
+    # A redrawn copy is the copy a new source with that seed would hold; the frames' own features stay.
+    redrawn = CachedSource(model, train, "trunk", augmentation=augmentation, seed=2)
+    redrawn.redraw_copy(model, train, augmentation, seed=3)
+    torch.testing.assert_close(redrawn.features, CachedSource(model, train, "trunk", augmentation=augmentation,
+                                                              seed=3).features, rtol=0, atol=0)
+    assert not torch.equal(redrawn.features[n:], both.features[n:])
+    redrawn.redraw_copy(model, train, None, seed=3)
+    assert torch.equal(redrawn.features, clean.features)
 
     config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, seed=1)
-    plain_config = replace(config, head_noise_sigma=0.0, head_blur_fraction=0.0)
+    plain_config = replace(config, head_noise_sigma=0.0, head_blur_fraction=0.0, head_misalign_fraction=0.0)
     trained = []
     for settings in (plain_config, config, config):
         model = model_for(frames, tiny_config)
