@@ -37,7 +37,7 @@ from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig, left_out_components
-from tactile_fusion.sources import MIN_BLUR_SIGMA_PX, Augmentation
+from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
 
@@ -84,7 +84,9 @@ def _train_config(args) -> TrainConfig:
                        head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
                        head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma,
                        head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px,
-                       head_misalign_fraction=args.head_misalign_fraction, head_cycles=args.head_cycles)
+                       head_misalign_fraction=args.head_misalign_fraction,
+                       head_misalign_shift_px=args.head_misalign_shift_px,
+                       head_misalign_rotation_deg=args.head_misalign_rotation_deg, head_cycles=args.head_cycles)
 
 
 def cmd_train(args) -> int:
@@ -254,11 +256,13 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help=f"... with a sigma drawn from [{MIN_BLUR_SIGMA_PX}, this] pixels (default %(default)s) "
                         "...")
     parser.add_argument("--head-misalign-fraction", type=float, default=train.head_misalign_fraction,
-                        help="... and on this share of them one camera knocked askew: shifted up to "
-                        f"{Augmentation.misalign_shift_px} px, turned up to {Augmentation.misalign_rotation_deg} "
-                        "degrees (default %(default)s). --head-noise-sigma 0 --head-blur-fraction 0 "
-                        "--head-misalign-fraction 0: no copy, the head learns from the frames alone "
-                        "(see docs/learning.md)")
+                        help="... and on this share of them one camera knocked askew (default %(default)s) ...")
+    parser.add_argument("--head-misalign-shift-px", type=float, default=train.head_misalign_shift_px,
+                        help="... shifted by up to this per axis (pixels, default %(default)s) ...")
+    parser.add_argument("--head-misalign-rotation-deg", type=float, default=train.head_misalign_rotation_deg,
+                        help="... and turned by up to this (degrees, default %(default)s). --head-noise-sigma 0 "
+                        "--head-blur-fraction 0 --head-misalign-fraction 0: no copy, the head learns from the frames "
+                        "alone (see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

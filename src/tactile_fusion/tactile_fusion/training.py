@@ -63,7 +63,9 @@ class TrainConfig:
     head_noise_sigma: float = 1.2  # head phase's imperfect copy: extra sensor noise up to this (grey levels) ...
     head_blur_fraction: float = 0.2  # ... and defocus blur on this share of the frames ...
     head_blur_sigma_px: float = 1.2  # ... of up to this sigma (pixels) ...
-    head_misalign_fraction: float = 0.1  # ... and one camera knocked askew on this share; all 0: no copy
+    head_misalign_fraction: float = 0.1  # ... and one camera knocked askew on this share ...
+    head_misalign_shift_px: float = 2.0  # ... shifted by up to this per axis (pixels) ...
+    head_misalign_rotation_deg: float = 2.0  # ... and turned by up to this (degrees); fractions and noise 0: no copy
     head_cycles: int = 1          # head phase, least-squares fit, repeated from there with a new copy this often
     recalibration_epochs: int = 13  # modular recalibration: epochs of the last layers on cached features
 
@@ -85,7 +87,7 @@ class TrainConfig:
     def head_augmentation(self) -> Augmentation:
         """The camera imperfections of the head phase's copy of the training frames."""
         return Augmentation(self.head_noise_sigma, self.head_blur_fraction, self.head_blur_sigma_px,
-                            self.head_misalign_fraction)
+                            self.head_misalign_fraction, self.head_misalign_shift_px, self.head_misalign_rotation_deg)
 
     def head_phase(self) -> TrainConfig:
         """The settings of the head phase: its own epochs, learning rate and batch size, the rest shared.
@@ -113,6 +115,13 @@ class TrainConfig:
         """`epochs` epochs, all run, at the head settings: a phase that trains layers on cached features."""
         return replace(self, max_epochs=epochs, learning_rate=self.head_learning_rate,
                        batch_size=self.head_batch_size, patience=max(epochs, 1), head_epochs=0)
+
+
+#: The settings that decide what the end-to-end phase trains. Resuming it compares only these, so the head settings of
+#: an interrupted run may change (its head checkpoint, which they decide, is then refused until deleted).
+END_TO_END_SETTINGS = ("max_epochs", "batch_size", "learning_rate", "patience", "min_learning_rate", "seed", "loss_eps")
+#: Settings that decide no single phase's result: how many head cycles follow, how long recalibration runs.
+NOT_PHASE_SETTINGS = ("head_cycles", "recalibration_epochs")
 
 
 def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
@@ -175,11 +184,13 @@ def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int
 
 def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
         checkpoint_path: str | Path | None = None, resume: bool = False, progress: bool = False,
-        on_epoch_end: Callable[[int, dict], None] | None = None, desc: str = "train") -> TrainResult:
+        on_epoch_end: Callable[[int, dict], None] | None = None, desc: str = "train",
+        compared: tuple[str, ...] | None = None) -> TrainResult:
     """Train the parameters of `model` that require gradients; keep the weights of the best validation epoch.
 
     checkpoint_path: written after every epoch (atomically); with `resume`, training continues from it and
-    ends with the same weights as an uninterrupted run. on_epoch_end(epoch, record) is called after each
+    ends with the same weights as an uninterrupted run. It is refused if it was written with other values of the
+    `compared` settings (None: all of them). on_epoch_end(epoch, record) is called after each
     epoch's checkpoint (an exception raised there interrupts training cleanly).
     """
     params = [p for p in model.parameters() if p.requires_grad]
@@ -207,7 +218,7 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
              "best_model": copy.deepcopy(model.state_dict()), "since_best": 0, "history": [], "wall_time_s": 0.0}
     checkpoint_path = Path(checkpoint_path) if checkpoint_path is not None else None
     if resume and checkpoint_path is not None and checkpoint_path.exists():
-        state = _load_checkpoint(checkpoint_path, model, optimizer, scheduler, config)
+        state = _load_checkpoint(checkpoint_path, model, optimizer, scheduler, config, compared)
 
     epochs = tqdm(range(state["epoch"] + 1, config.max_epochs + 1), desc=desc, unit="epoch", disable=not progress,
                   initial=state["epoch"], total=config.max_epochs)
@@ -274,7 +285,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     scale = model.force_scale_n
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
-                                 desc="train end-to-end")}
+                                 desc="train end-to-end", compared=END_TO_END_SETTINGS)}
     cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation(), seed=config.seed)
     cached_val = CachedSource(model, val, "trunk")
     for cycle in range(1, config.head_cycles + 1):
@@ -297,8 +308,9 @@ def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: C
     model.cnn.trunk.requires_grad_(False)
     model_dropout = model.cnn.set_dropout(model.config.dropout if config.head_dropout is None else config.head_dropout)
     try:
-        return fit(model, cached_train, cached_val, config.head_phase(), checkpoint_path, resume, progress,
-                   on_epoch_end, desc="train head")
+        head = config.head_phase()
+        return fit(model, cached_train, cached_val, head, checkpoint_path, resume, progress, on_epoch_end,
+                   desc="train head", compared=tuple(k for k in asdict(head) if k not in NOT_PHASE_SETTINGS))
     finally:
         model.cnn.trunk.requires_grad_(True)
         model.cnn.set_dropout(model_dropout)
@@ -323,7 +335,8 @@ def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     os.replace(tmp, path)  # atomic: an interruption never leaves a half-written checkpoint
 
 
-def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig) -> dict:
+def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig,
+                     compared: tuple[str, ...] | None) -> dict:
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
@@ -342,10 +355,13 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     if "head_blur_fraction" not in saved and saved.get("head_noise_sigma", 0.0) > 0:
         raise CheckpointMismatchError(f"checkpoint {path} was written when --head-noise-sigma replaced the training "
                                       "frames (it now adds an imperfect copy): delete the checkpoint")
-    if {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved} != asdict(config):
-        raise CheckpointMismatchError(f"checkpoint {path} was written with training settings "
-                                      f"{saved}, not {asdict(config)}: resume with the same "
-                                      "settings or delete the checkpoint")
+    then = {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved}
+    now = asdict(config)
+    differ = {k: (then[k], now[k]) for k in (now if compared is None else compared) if then[k] != now[k]}
+    if differ:
+        settings = ", ".join(f"{k} {a!r} (now {b!r})" for k, (a, b) in differ.items())
+        raise CheckpointMismatchError(f"checkpoint {path} was written with other training settings: {settings}; "
+                                      "resume with the same settings or delete the checkpoint")
     try:
         model.load_state_dict(checkpoint["model"])
     except RuntimeError as exc:

@@ -216,6 +216,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     ("train", ["--head-dropout", "1.5"], "TrainConfig.head_dropout must be in [0, 1)"),
     ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be >= 1"),
     ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
+    ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
     ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),

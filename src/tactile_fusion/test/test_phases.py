@@ -121,6 +121,42 @@ def test_train_phases_run_head_and_fusion_fit_and_resume_in_the_head_phase(frame
         assert torch.equal(value, resumed.state_dict()[key]), key
 
 
+def test_an_interrupted_run_resumes_its_end_to_end_phase_with_new_head_settings(frames, tiny_config, tmp_path):
+    """The end-to-end checkpoint is compared on the settings that decide that phase alone, the head checkpoint on
+    the head's too: a user can change the head of an interrupted run without training the conv trunk again."""
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1)
+    new_head = replace(config, head_epochs=2, head_noise_sigma=0.5)
+
+    class Interrupt(Exception):
+        pass
+
+    def interrupt_in_head(epoch, record):
+        calls.append(epoch)
+        if len(calls) == 3:  # 2 end-to-end epochs, then the 1st head epoch
+            raise Interrupt
+
+    calls = []
+    with pytest.raises(Interrupt):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
+    with pytest.raises(ValueError, match=r"checkpoint_head\.pt was written with other training settings: "
+                                         r"max_epochs 3 \(now 2\), patience 3 \(now 2\), "
+                                         r"head_noise_sigma 1\.2 \(now 0\.5\);"):
+        train_phases(model_for(frames, tiny_config), train, val, new_head, tmp_path, resume=True)
+    with pytest.raises(ValueError, match=r"checkpoint_end_to_end\.pt .*: max_epochs 2 \(now 3\);"):
+        train_phases(model_for(frames, tiny_config), train, val, replace(config, max_epochs=3), tmp_path, resume=True)
+
+    (tmp_path / "checkpoint_head.pt").unlink()
+    calls = []
+    resumed = model_for(frames, tiny_config)
+    results = train_phases(resumed, train, val, new_head, tmp_path, resume=True, on_epoch_end=interrupt_in_head)
+    assert calls == [1, 2] and results["end_to_end"].epochs_run == 2  # only the head trained, with its new settings
+    straight = model_for(frames, tiny_config)
+    train_phases(straight, train, val, new_head)
+    for key, value in straight.state_dict().items():
+        assert torch.equal(value, resumed.state_dict()[key]), key
+
+
 def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_config, tmp_path):
     train, val = splits(frames)
     config = TrainConfig(max_epochs=1, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=2, head_cycles=2)
@@ -245,6 +281,11 @@ def test_augmented_misalignment_knocks_one_camera_askew_in_the_asked_share_of_fr
             Augmentation(**{field: bad})
     with pytest.raises(ValueError, match="TrainConfig.head_misalign_fraction must be"):
         TrainConfig(head_misalign_fraction=2.0)
+    with pytest.raises(ValueError, match="TrainConfig.head_misalign_rotation_deg must be"):
+        TrainConfig(head_misalign_rotation_deg=50.0)
+    # The shift and rotation are training settings (recorded in training.json and checkpoints), not hidden defaults.
+    wider = TrainConfig(head_misalign_shift_px=3.0, head_misalign_rotation_deg=4.0).head_augmentation()
+    assert (wider.misalign_shift_px, wider.misalign_rotation_deg) == (3.0, 4.0)
 
 
 def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames, tiny_config):

@@ -125,7 +125,7 @@ def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_train
 
     def before_the_head_settings(saved):
         for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px",
-                    "head_misalign_fraction", "head_cycles"):
+                    "head_misalign_fraction", "head_misalign_shift_px", "head_misalign_rotation_deg", "head_cycles"):
             del saved[key]
 
     checkpoint_as_written_then(frames, tiny_config, old_behaviour, checkpoint, before_the_head_settings)
