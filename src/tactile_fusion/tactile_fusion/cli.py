@@ -235,8 +235,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         "%(default)s, sized like --epochs)")
     parser.add_argument("--head-cycles", type=int, default=train.head_cycles,
                         help="run the head phase and the least-squares fit this many times, each from the one before "
-                        "with a new imperfect copy (default %(default)s; 2 with --head-epochs 15 costs about as much "
-                        "as the default, see docs/learning.md)")
+                        "with a new imperfect copy (default %(default)s, see docs/learning.md)")
     parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per end-to-end step")
     parser.add_argument("--learning-rate", type=float, default=train.learning_rate)
     parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size,

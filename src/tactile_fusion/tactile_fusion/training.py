@@ -44,12 +44,14 @@ class TrainConfig:
     cuts six-fold (docs/learning.md).
     Modular recalibration (recalibration.py) trains like the head phase, on clean frames: `recalibration_phase`.
 
-    The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 13 x 1017 end-to-end
-    steps; the head phase's 30 epochs on the frames and their imperfect copy make 30 x 509 steps): on the former
-    24 x 24 grid, half the frames, 26 end-to-end and 26 recalibration epochs made the same number of steps.
+    The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 8 x 1017 end-to-end
+    steps; the head phase's 30 epochs on the frames and their imperfect copy make 30 x 509 steps, in each of its
+    `head_cycles` cycles). Three head cycles after 8 end-to-end epochs reached 2.99 mN per bin where one after 13
+    reached 3.25, with `make model` 2.7 minutes longer (docs/learning.md): the head, not the conv trunk, was short of
+    training.
     """
 
-    max_epochs: int = 13
+    max_epochs: int = 8
     batch_size: int = 16          # frames per step; each brings all its cameras through the CNN
     learning_rate: float = 2e-3
     patience: int = 6             # early stopping: epochs without a better validation RMSE
@@ -66,7 +68,7 @@ class TrainConfig:
     head_misalign_fraction: float = 0.1  # ... and one camera knocked askew on this share ...
     head_misalign_shift_px: float = 2.0  # ... shifted by up to this per axis (pixels) ...
     head_misalign_rotation_deg: float = 2.0  # ... and turned by up to this (degrees); fractions and noise 0: no copy
-    head_cycles: int = 1          # head phase, least-squares fit, repeated from there with a new copy this often
+    head_cycles: int = 3          # head phase, least-squares fit, repeated from there with a new copy this often
     recalibration_epochs: int = 13  # modular recalibration: epochs of the last layers on cached features
 
     def __post_init__(self):
@@ -117,11 +119,21 @@ class TrainConfig:
                        batch_size=self.head_batch_size, patience=max(epochs, 1), head_epochs=0)
 
 
-#: The settings that decide what the end-to-end phase trains. Resuming it compares only these, so the head settings of
-#: an interrupted run may change (its head checkpoint, which they decide, is then refused until deleted).
-END_TO_END_SETTINGS = ("max_epochs", "batch_size", "learning_rate", "patience", "min_learning_rate", "seed", "loss_eps")
+# Which phase each training setting decides. A checkpoint is resumed only with the same values of the settings that
+# decide its phase, so the head settings of an interrupted run may change (its head checkpoints are then refused until
+# deleted, but the end-to-end one resumes). Every TrainConfig field is in exactly one of these (tested).
+END_TO_END_SETTINGS = ("max_epochs", "batch_size", "learning_rate", "patience")
+HEAD_SETTINGS = ("head_epochs", "head_learning_rate", "head_batch_size", "head_dropout", "head_noise_sigma",
+                 "head_blur_fraction", "head_blur_sigma_px", "head_misalign_fraction", "head_misalign_shift_px",
+                 "head_misalign_rotation_deg")
+SHARED_SETTINGS = ("min_learning_rate", "seed", "loss_eps")
 #: Settings that decide no single phase's result: how many head cycles follow, how long recalibration runs.
 NOT_PHASE_SETTINGS = ("head_cycles", "recalibration_epochs")
+#: What a phase's checkpoint is compared on: {field of the config that `fit` gets: the setting's name}. The head phase's
+#: config (`TrainConfig.head_phase`) carries the head's epochs as max_epochs (and its learning rate and batch size in
+#: both places; its patience follows its epochs).
+END_TO_END_COMPARED = {k: k for k in END_TO_END_SETTINGS + SHARED_SETTINGS}
+HEAD_COMPARED = {"max_epochs": "head_epochs", **{k: k for k in HEAD_SETTINGS[1:] + SHARED_SETTINGS}}
 
 
 def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
@@ -185,12 +197,13 @@ def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int
 def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
         checkpoint_path: str | Path | None = None, resume: bool = False, progress: bool = False,
         on_epoch_end: Callable[[int, dict], None] | None = None, desc: str = "train",
-        compared: tuple[str, ...] | None = None) -> TrainResult:
+        compared: dict[str, str] | None = None) -> TrainResult:
     """Train the parameters of `model` that require gradients; keep the weights of the best validation epoch.
 
     checkpoint_path: written after every epoch (atomically); with `resume`, training continues from it and
     ends with the same weights as an uninterrupted run. It is refused if it was written with other values of the
-    `compared` settings (None: all of them). on_epoch_end(epoch, record) is called after each
+    `compared` settings ({config field: name in the message}; None: all of them) or on top of other frozen weights
+    than the model's (the phase before it changed since). on_epoch_end(epoch, record) is called after each
     epoch's checkpoint (an exception raised there interrupts training cleanly).
     """
     params = [p for p in model.parameters() if p.requires_grad]
@@ -276,8 +289,8 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
     With `config.head_cycles` > 1 the head phase and the fit run again, each further cycle from the fit before it,
     with a new cosine schedule and a newly drawn imperfect copy (seed + cycle - 1); its results get the suffix
-    "_<cycle>". Measured on the shipped model's end-to-end phase (docs/learning.md): two cycles of 30 epochs reached
-    3.04 mN per bin against 3.25 for one and 3.15 for 45 epochs in a row; two of 15 about the same as one of 30.
+    "_<cycle>". Measured after 13 end-to-end epochs (docs/learning.md): one, two, three and four cycles of 30 epochs
+    reached 3.25, 3.04, 2.90 and 2.82 mN per bin, 45 epochs in a row 3.15.
     Returns {"end_to_end": TrainResult, "head": TrainResult (when it ran), "fusion_fit": least-squares report,
     and "head_2", "fusion_fit_2", ... for further cycles}.
     """
@@ -285,7 +298,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     scale = model.force_scale_n
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
-                                 desc="train end-to-end", compared=END_TO_END_SETTINGS)}
+                                 desc="train end-to-end", compared=END_TO_END_COMPARED)}
     cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation(), seed=config.seed)
     cached_val = CachedSource(model, val, "trunk")
     for cycle in range(1, config.head_cycles + 1):
@@ -308,9 +321,8 @@ def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: C
     model.cnn.trunk.requires_grad_(False)
     model_dropout = model.cnn.set_dropout(model.config.dropout if config.head_dropout is None else config.head_dropout)
     try:
-        head = config.head_phase()
-        return fit(model, cached_train, cached_val, head, checkpoint_path, resume, progress, on_epoch_end,
-                   desc="train head", compared=tuple(k for k in asdict(head) if k not in NOT_PHASE_SETTINGS))
+        return fit(model, cached_train, cached_val, config.head_phase(), checkpoint_path, resume, progress,
+                   on_epoch_end, desc="train head", compared=HEAD_COMPARED)
     finally:
         model.cnn.trunk.requires_grad_(True)
         model.cnn.set_dropout(model_dropout)
@@ -318,7 +330,8 @@ def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: C
 
 #: Head-phase settings of a checkpoint written before they existed: dropout at the model's rate, no imperfect copy.
 SETTINGS_BEFORE_THEY_EXISTED = {"head_dropout": None, "head_noise_sigma": 0.0, "head_blur_fraction": 0.0,
-                                "head_misalign_fraction": 0.0, "head_cycles": 1}
+                                "head_misalign_fraction": 0.0, "head_misalign_shift_px": 2.0,
+                                "head_misalign_rotation_deg": 2.0, "head_cycles": 1}
 
 
 def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:
@@ -336,7 +349,7 @@ def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
 
 
 def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig,
-                     compared: tuple[str, ...] | None) -> dict:
+                     compared: dict[str, str] | None) -> dict:
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
@@ -352,16 +365,24 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     # Settings added since the checkpoint was written count as what training did without them: their defaults, or
     # for the head phase's settings whose default changed, the value that reproduces the old behaviour.
     saved = checkpoint["train_config"]
-    if "head_blur_fraction" not in saved and saved.get("head_noise_sigma", 0.0) > 0:
+    now = asdict(config)
+    compared = compared if compared is not None else {k: k for k in now}
+    if "head_noise_sigma" in compared and "head_blur_fraction" not in saved and saved.get("head_noise_sigma", 0.0) > 0:
         raise CheckpointMismatchError(f"checkpoint {path} was written when --head-noise-sigma replaced the training "
                                       "frames (it now adds an imperfect copy): delete the checkpoint")
     then = {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved}
-    now = asdict(config)
-    differ = {k: (then[k], now[k]) for k in (now if compared is None else compared) if then[k] != now[k]}
+    differ = ", ".join(f"{name} {then[k]!r} (now {now[k]!r})" for k, name in compared.items() if then[k] != now[k])
     if differ:
-        settings = ", ".join(f"{k} {a!r} (now {b!r})" for k, (a, b) in differ.items())
-        raise CheckpointMismatchError(f"checkpoint {path} was written with other training settings: {settings}; "
-                                      "resume with the same settings or delete the checkpoint")
+        raise CheckpointMismatchError(f"checkpoint {path} was written with other training settings: {differ}; resume "
+                                      "with the same settings, or delete it and the checkpoints of the phases after it")
+    # A phase that trains on top of frozen weights (the head on the conv trunk) must find the ones it was trained on:
+    # a deleted and retrained end-to-end phase gives another trunk, and the checkpoint would put back the old one.
+    changed = [name for name, p in model.named_parameters()
+               if not p.requires_grad and not torch.equal(checkpoint["model"].get(name, p), p.detach())]
+    if changed:
+        raise CheckpointMismatchError(f"checkpoint {path} was trained on top of other frozen weights than this model "
+                                      f"has ({changed[0]}, ...): the phase before it was trained again since; delete "
+                                      "it to train its phase afresh")
     try:
         model.load_state_dict(checkpoint["model"])
     except RuntimeError as exc:

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON, file_sha256
+from tactile_fusion.training import TrainConfig
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 TINY = ["--conv-channels", "2,2,2,2", "--hidden-features", "8", "--camera-features", "8", "--fusion-rank", "4",
@@ -40,7 +41,8 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     assert json.loads((out / MODEL_JSON).read_text())["components"] == ["fx", "fy", "fz"]
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
-    assert set(training["phases"]) == {"end_to_end", "head", "fusion_fit"}
+    cycles = [""] + [f"_{c}" for c in range(2, TrainConfig().head_cycles + 1)]  # the default head cycles
+    assert set(training["phases"]) == {"end_to_end", *(f"{p}{c}" for c in cycles for p in ("head", "fusion_fit"))}
     metrics = json.loads((out / METRICS_JSON).read_text())
     assert set(metrics["backends"]) == {"onnxruntime_fp32", "onnxruntime_int8", "onnxruntime_fp16", "torch_fp32",
                                         "torch_fp16"}
@@ -217,6 +219,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be >= 1"),
     ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
     ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
+    ("train", ["--head-misalign-rotation-deg", "50"], "TrainConfig.head_misalign_rotation_deg must be in [0, 45]"),
     ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),

@@ -1,6 +1,6 @@
 """The training phases after end-to-end: head on cached features, least-squares fusion fit, recalibration."""
 
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -12,7 +12,16 @@ from tactile_fusion.model import force_scale_from_targets
 from tactile_fusion.pipeline import train_model
 from tactile_fusion.recalibration import add_camera, fraction_subset, predict_torch, recalibrate
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
-from tactile_fusion.training import TrainConfig, build_model, fit, train_phases
+from tactile_fusion.training import (
+    END_TO_END_SETTINGS,
+    HEAD_SETTINGS,
+    NOT_PHASE_SETTINGS,
+    SHARED_SETTINGS,
+    TrainConfig,
+    build_model,
+    fit,
+    train_phases,
+)
 
 
 def splits(frames):
@@ -94,7 +103,7 @@ def test_least_squares_keeps_the_layer_when_no_ridge_helps(frames, tiny_config):
 
 def test_train_phases_run_head_and_fusion_fit_and_resume_in_the_head_phase(frames, tiny_config, tmp_path):
     train, val = splits(frames)
-    config = TrainConfig(max_epochs=2, head_epochs=4, batch_size=8, learning_rate=5e-3, seed=1)
+    config = TrainConfig(max_epochs=2, head_epochs=4, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1)
     straight = model_for(frames, tiny_config)
     results = train_phases(straight, train, val, config)
     assert set(results) == {"end_to_end", "head", "fusion_fit"}
@@ -125,7 +134,7 @@ def test_an_interrupted_run_resumes_its_end_to_end_phase_with_new_head_settings(
     """The end-to-end checkpoint is compared on the settings that decide that phase alone, the head checkpoint on
     the head's too: a user can change the head of an interrupted run without training the conv trunk again."""
     train, val = splits(frames)
-    config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1)
+    config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1)
     new_head = replace(config, head_epochs=2, head_noise_sigma=0.5)
 
     class Interrupt(Exception):
@@ -140,8 +149,7 @@ def test_an_interrupted_run_resumes_its_end_to_end_phase_with_new_head_settings(
     with pytest.raises(Interrupt):
         train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
     with pytest.raises(ValueError, match=r"checkpoint_head\.pt was written with other training settings: "
-                                         r"max_epochs 3 \(now 2\), patience 3 \(now 2\), "
-                                         r"head_noise_sigma 1\.2 \(now 0\.5\);"):
+                                         r"head_epochs 3 \(now 2\), head_noise_sigma 1\.2 \(now 0\.5\);"):
         train_phases(model_for(frames, tiny_config), train, val, new_head, tmp_path, resume=True)
     with pytest.raises(ValueError, match=r"checkpoint_end_to_end\.pt .*: max_epochs 2 \(now 3\);"):
         train_phases(model_for(frames, tiny_config), train, val, replace(config, max_epochs=3), tmp_path, resume=True)
@@ -155,6 +163,39 @@ def test_an_interrupted_run_resumes_its_end_to_end_phase_with_new_head_settings(
     train_phases(straight, train, val, new_head)
     for key, value in straight.state_dict().items():
         assert torch.equal(value, resumed.state_dict()[key]), key
+
+
+def test_a_head_checkpoint_on_top_of_another_conv_trunk_is_refused(frames, tiny_config, tmp_path):
+    """The head checkpoint holds the trunk it was trained on: after the end-to-end phase was trained again (its
+    checkpoint deleted, other settings), resuming it would put the old trunk under the new trunk's cached features."""
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1)
+
+    calls = []
+
+    def interrupt_in_head(epoch, record):
+        calls.append(epoch)
+        if len(calls) == 3:  # 2 end-to-end epochs, then the 1st head epoch
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
+    # The end-to-end phase trained again gives another trunk; here the head checkpoint's trunk is moved instead, so
+    # that the trunks differ for certain (a tiny run may keep its initial weights whatever its settings).
+    head_checkpoint = tmp_path / "checkpoint_head.pt"
+    saved = torch.load(head_checkpoint, weights_only=False)
+    name = next(k for k in saved["model"] if k.startswith("cnn.trunk.") and k.endswith("weight"))
+    saved["model"][name] = saved["model"][name] + 0.01
+    torch.save(saved, head_checkpoint)
+    with pytest.raises(ValueError, match=r"checkpoint_head\.pt was trained on top of other frozen weights than this "
+                                         rf"model has \({name}, \.\.\.\)"):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, resume=True)
+
+
+def test_every_training_setting_belongs_to_one_phase_or_none():
+    """Resuming compares a phase's own settings: a setting missing from every group would never be compared."""
+    groups = END_TO_END_SETTINGS + HEAD_SETTINGS + SHARED_SETTINGS + NOT_PHASE_SETTINGS
+    assert sorted(groups) == sorted(f.name for f in fields(TrainConfig))
 
 
 def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_config, tmp_path):
@@ -184,6 +225,12 @@ def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_
     train_phases(resumed, train, val, config, tmp_path, resume=True)
     for key, value in two.state_dict().items():
         assert torch.equal(value, resumed.state_dict()[key]), key
+    # A later cycle's checkpoint is compared on the head settings too (the first cycle's deleted, so it trains anew).
+    (tmp_path / "checkpoint_head.pt").unlink()
+    with pytest.raises(ValueError, match=r"checkpoint_head_2\.pt was written with other training settings: "
+                                         r"head_noise_sigma 1\.2 \(now 0\.5\);"):
+        train_phases(model_for(frames, tiny_config), train, val, replace(config, head_noise_sigma=0.5), tmp_path,
+                     resume=True)
     with pytest.raises(ValueError, match="TrainConfig.head_cycles must be >= 1"):
         TrainConfig(head_cycles=0)
 
@@ -196,7 +243,7 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
     def record_rates(epoch, record):
         rates.append((model.cnn.first_layer.dropout.p, model.cnn.last_layer.dropout.p))
 
-    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, head_dropout=0.3)
+    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, head_dropout=0.3, head_cycles=1)
     train_phases(model, train, val, config, on_epoch_end=record_rates)
     assert rates == [(0.1, 0.1), (0.3, 0.3), (0.3, 0.3)]
     train_phases(model, train, val, replace(config, head_dropout=None), on_epoch_end=record_rates)
@@ -204,7 +251,8 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
     assert model.cnn.set_dropout(0.2) == 0.1  # restored after the phase
     defaults = replace(TrainConfig(), max_epochs=1, head_epochs=2, batch_size=8)
     train_phases(model, train, val, defaults, on_epoch_end=record_rates)
-    assert rates[6:] == [(0.2, 0.2), (0.0, 0.0), (0.0, 0.0)]  # the default: no dropout in the head phase ...
+    # The default: no dropout in the head phase (all its cycles) ...
+    assert rates[6:] == [(0.2, 0.2)] + [(0.0, 0.0)] * 2 * defaults.head_cycles
     assert defaults.head_augmentation().active  # ... which also learns from an imperfect copy of the frames
 
     def interrupt_in_head(epoch, record):

@@ -120,7 +120,7 @@ def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_train
     """Head settings whose default changed count as what training did before they existed: no copy, the model's
     dropout. A checkpoint of the time when --head-noise-sigma replaced the frames cannot be resumed at all."""
     old_behaviour = TrainConfig(max_epochs=2, batch_size=8, head_dropout=None, head_noise_sigma=0.0,
-                                head_blur_fraction=0.0, head_misalign_fraction=0.0)
+                                head_blur_fraction=0.0, head_misalign_fraction=0.0, head_cycles=1)
     checkpoint = tmp_path / "checkpoint.pt"
 
     def before_the_head_settings(saved):
