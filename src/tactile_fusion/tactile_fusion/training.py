@@ -9,6 +9,7 @@ features of the frozen CNN, see recalibration.py) share it.
 from __future__ import annotations
 
 import copy
+import hashlib
 import os
 import time
 from collections.abc import Callable
@@ -197,13 +198,14 @@ def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int
 def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
         checkpoint_path: str | Path | None = None, resume: bool = False, progress: bool = False,
         on_epoch_end: Callable[[int, dict], None] | None = None, desc: str = "train",
-        compared: dict[str, str] | None = None) -> TrainResult:
+        compared: dict[str, str] | None = None, data: dict | None = None) -> TrainResult:
     """Train the parameters of `model` that require gradients; keep the weights of the best validation epoch.
 
     checkpoint_path: written after every epoch (atomically); with `resume`, training continues from it and
     ends with the same weights as an uninterrupted run. It is refused if it was written with other values of the
     `compared` settings ({config field: name in the message}; None: all of them) or on top of other frozen weights
-    than the model's (the phase before it changed since). on_epoch_end(epoch, record) is called after each
+    than the model's (the phase before it changed since), or on other data (`data`, see `data_identity`; a checkpoint
+    that records none is not checked). on_epoch_end(epoch, record) is called after each
     epoch's checkpoint (an exception raised there interrupts training cleanly).
     """
     params = [p for p in model.parameters() if p.requires_grad]
@@ -231,7 +233,7 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
              "best_model": copy.deepcopy(model.state_dict()), "since_best": 0, "history": [], "wall_time_s": 0.0}
     checkpoint_path = Path(checkpoint_path) if checkpoint_path is not None else None
     if resume and checkpoint_path is not None and checkpoint_path.exists():
-        state = _load_checkpoint(checkpoint_path, model, optimizer, scheduler, config, compared)
+        state = _load_checkpoint(checkpoint_path, model, optimizer, scheduler, config, compared, data)
 
     epochs = tqdm(range(state["epoch"] + 1, config.max_epochs + 1), desc=desc, unit="epoch", disable=not progress,
                   initial=state["epoch"], total=config.max_epochs)
@@ -263,7 +265,7 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
         state["wall_time_s"] += time.perf_counter() - started
         epochs.set_postfix(val_rmse=f"{val_rmse:.4f}", best=f"{state['best_val']:.4f}")
         if checkpoint_path is not None:
-            _save_checkpoint(checkpoint_path, model, optimizer, scheduler, config, state)
+            _save_checkpoint(checkpoint_path, model, optimizer, scheduler, config, state, data)
         if on_epoch_end is not None:
             on_epoch_end(epoch, record)
     epochs.close()
@@ -296,9 +298,10 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     """
     checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
     scale = model.force_scale_n
+    data = data_identity(train, val)
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
-                                 desc="train end-to-end", compared=END_TO_END_COMPARED)}
+                                 desc="train end-to-end", compared=END_TO_END_COMPARED, data=data)}
     cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation(), seed=config.seed)
     cached_val = CachedSource(model, val, "trunk")
     for cycle in range(1, config.head_cycles + 1):
@@ -308,21 +311,21 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
         if config.head_epochs:
             results[f"head{suffix}"] = _head_phase(model, cached_train, cached_val, config,
                                                    _phase_checkpoint(checkpoint_dir, f"head{suffix}"), resume,
-                                                   progress, on_epoch_end)
+                                                   progress, on_epoch_end, data)
         results[f"fusion_fit{suffix}"] = fit_fusion(model, cached_train, cached_val)
     model.eval()
     return results
 
 
 def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: CachedSource, config: TrainConfig,
-                checkpoint_path: Path | None, resume: bool, progress: bool, on_epoch_end) -> TrainResult:
+                checkpoint_path: Path | None, resume: bool, progress: bool, on_epoch_end, data: dict) -> TrainResult:
     """The head alone on cached conv-trunk features, at the head phase's dropout; the model's own dropout and its
     trainable trunk are restored afterwards."""
     model.cnn.trunk.requires_grad_(False)
     model_dropout = model.cnn.set_dropout(model.config.dropout if config.head_dropout is None else config.head_dropout)
     try:
         return fit(model, cached_train, cached_val, config.head_phase(), checkpoint_path, resume, progress,
-                   on_epoch_end, desc="train head", compared=HEAD_COMPARED)
+                   on_epoch_end, desc="train head", compared=HEAD_COMPARED, data=data)
     finally:
         model.cnn.trunk.requires_grad_(True)
         model.cnn.set_dropout(model_dropout)
@@ -334,22 +337,34 @@ SETTINGS_BEFORE_THEY_EXISTED = {"head_dropout": None, "head_noise_sigma": 0.0, "
                                 "head_misalign_rotation_deg": 2.0, "head_cycles": 1}
 
 
+def data_identity(train: FrameSet, val: FrameSet) -> dict:
+    """What training runs on, as a checkpoint records it: the scene, its seed, the split sizes and a digest of the
+    training and validation targets (which frames, in which order). Resuming on other frames (another scene,
+    `--frames`, dataset) would train one model on two data sets."""
+    digest = hashlib.sha256()
+    for frames in (train, val):
+        digest.update(np.ascontiguousarray(frames.bin_forces_n, dtype=np.float32).tobytes())
+    return {"scene": train.scene, "seed": int(train.seed), "train_frames": len(train), "val_frames": len(val),
+            "targets_sha256": digest.hexdigest()}
+
+
 def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:
     return None if checkpoint_dir is None else checkpoint_dir / f"checkpoint_{phase}.pt"
 
 
-def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig, state: dict) -> None:
+def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig, state: dict,
+                     data: dict | None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     torch.save({"model": model.state_dict(), "model_config": model.config.to_dict(),
                 "components": list(model.components),
                 "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                "train_config": asdict(config), "state": state}, tmp)
+                "train_config": asdict(config), "data": data, "state": state}, tmp)
     os.replace(tmp, path)  # atomic: an interruption never leaves a half-written checkpoint
 
 
 def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig,
-                     compared: dict[str, str] | None) -> dict:
+                     compared: dict[str, str] | None, data: dict | None) -> dict:
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
@@ -375,6 +390,11 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     if differ:
         raise CheckpointMismatchError(f"checkpoint {path} was written with other training settings: {differ}; resume "
                                       "with the same settings, or delete it and the checkpoints of the phases after it")
+    trained_on = checkpoint.get("data")
+    if data is not None and trained_on is not None and trained_on != data:
+        differ = ", ".join(f"{k} {trained_on.get(k)!r} (now {v!r})" for k, v in data.items() if trained_on.get(k) != v)
+        raise CheckpointMismatchError(f"checkpoint {path} was trained on other data: {differ}; resume on the same "
+                                      "scene or dataset and frames, or delete the checkpoints")
     # A phase that trains on top of frozen weights (the head on the conv trunk) must find the ones it was trained on:
     # a deleted and retrained end-to-end phase gives another trunk, and the checkpoint would put back the old one.
     changed = [name for name, p in model.named_parameters()

@@ -192,6 +192,24 @@ def test_a_head_checkpoint_on_top_of_another_conv_trunk_is_refused(frames, tiny_
         train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, resume=True)
 
 
+def test_a_checkpoint_of_other_frames_is_refused(frames, tiny_config, tmp_path):
+    """Resuming on other frames (another scene, --frames, dataset) would train one model on two data sets."""
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=2, head_epochs=1, batch_size=8, head_cycles=1)
+
+    def interrupt(epoch, record):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt)
+    fewer = train.subset(np.arange(len(train) - 1))
+    with pytest.raises(ValueError, match=rf"checkpoint_end_to_end\.pt was trained on other data: train_frames "
+                                         rf"{len(train)} \(now {len(fewer)}\), targets_sha256 "):
+        train_phases(model_for(frames, tiny_config), fewer, val, config, tmp_path, resume=True)
+    results = train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, resume=True)
+    assert results["end_to_end"].epochs_run == 2  # the same frames resume
+
+
 def test_every_training_setting_belongs_to_one_phase_or_none():
     """Resuming compares a phase's own settings: a setting missing from every group would never be compared."""
     groups = END_TO_END_SETTINGS + HEAD_SETTINGS + SHARED_SETTINGS + NOT_PHASE_SETTINGS
