@@ -298,7 +298,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     """
     checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
     scale = model.force_scale_n
-    data = data_identity(train, val)
+    data = data_identity(train, val) if checkpoint_dir is not None else None  # only checkpoints record it
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
                                  desc="train end-to-end", compared=END_TO_END_COMPARED, data=data)}
@@ -318,7 +318,8 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
 
 def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: CachedSource, config: TrainConfig,
-                checkpoint_path: Path | None, resume: bool, progress: bool, on_epoch_end, data: dict) -> TrainResult:
+                checkpoint_path: Path | None, resume: bool, progress: bool, on_epoch_end,
+                data: dict | None) -> TrainResult:
     """The head alone on cached conv-trunk features, at the head phase's dropout; the model's own dropout and its
     trainable trunk are restored afterwards."""
     model.cnn.trunk.requires_grad_(False)

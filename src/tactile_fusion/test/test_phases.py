@@ -35,6 +35,22 @@ def model_for(frames, config, seed=0, components=("fx", "fy", "fz")):
     return build_model(config, frames.camera_ids, 3, 4, scale, seed, components)
 
 
+class Interrupt(Exception):
+    """Raised by `interrupt_after`: training stops there as after Ctrl-C, its checkpoints written."""
+
+
+def interrupt_after(n: int):
+    """(on_epoch_end callback that raises Interrupt after the n-th epoch of all phases together, the epochs seen)."""
+    seen = []
+
+    def callback(epoch, record):
+        seen.append(epoch)
+        if len(seen) == n:
+            raise Interrupt
+
+    return callback, seen
+
+
 def test_cached_source_predicts_what_the_whole_network_predicts(frames, tiny_config):
     model = model_for(frames, tiny_config).eval()
     train, _ = splits(frames)
@@ -110,16 +126,7 @@ def test_train_phases_run_head_and_fusion_fit_and_resume_in_the_head_phase(frame
     assert results["head"].epochs_run == 4
     assert all(p.requires_grad for p in straight.parameters())  # the trunk is unfrozen again afterwards
 
-    class Interrupt(Exception):
-        pass
-
-    calls = []
-
-    def interrupt_in_head(epoch, record):
-        calls.append(epoch)
-        if len(calls) == 4:  # 2 end-to-end epochs, then the 2nd head epoch
-            raise Interrupt
-
+    interrupt_in_head, _ = interrupt_after(4)  # 2 end-to-end epochs, then the 2nd head epoch
     interrupted = model_for(frames, tiny_config)
     with pytest.raises(Interrupt):
         train_phases(interrupted, train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
@@ -137,15 +144,7 @@ def test_an_interrupted_run_resumes_its_end_to_end_phase_with_new_head_settings(
     config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1)
     new_head = replace(config, head_epochs=2, head_noise_sigma=0.5)
 
-    class Interrupt(Exception):
-        pass
-
-    def interrupt_in_head(epoch, record):
-        calls.append(epoch)
-        if len(calls) == 3:  # 2 end-to-end epochs, then the 1st head epoch
-            raise Interrupt
-
-    calls = []
+    interrupt_in_head, _ = interrupt_after(3)  # 2 end-to-end epochs, then the 1st head epoch
     with pytest.raises(Interrupt):
         train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
     with pytest.raises(ValueError, match=r"checkpoint_head\.pt was written with other training settings: "
@@ -155,9 +154,9 @@ def test_an_interrupted_run_resumes_its_end_to_end_phase_with_new_head_settings(
         train_phases(model_for(frames, tiny_config), train, val, replace(config, max_epochs=3), tmp_path, resume=True)
 
     (tmp_path / "checkpoint_head.pt").unlink()
-    calls = []
+    count_epochs, calls = interrupt_after(3)
     resumed = model_for(frames, tiny_config)
-    results = train_phases(resumed, train, val, new_head, tmp_path, resume=True, on_epoch_end=interrupt_in_head)
+    results = train_phases(resumed, train, val, new_head, tmp_path, resume=True, on_epoch_end=count_epochs)
     assert calls == [1, 2] and results["end_to_end"].epochs_run == 2  # only the head trained, with its new settings
     straight = model_for(frames, tiny_config)
     train_phases(straight, train, val, new_head)
@@ -171,14 +170,8 @@ def test_a_head_checkpoint_on_top_of_another_conv_trunk_is_refused(frames, tiny_
     train, val = splits(frames)
     config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1)
 
-    calls = []
-
-    def interrupt_in_head(epoch, record):
-        calls.append(epoch)
-        if len(calls) == 3:  # 2 end-to-end epochs, then the 1st head epoch
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
+    interrupt_in_head, _ = interrupt_after(3)  # 2 end-to-end epochs, then the 1st head epoch
+    with pytest.raises(Interrupt):
         train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
     # The end-to-end phase trained again gives another trunk; here the head checkpoint's trunk is moved instead, so
     # that the trunks differ for certain (a tiny run may keep its initial weights whatever its settings).
@@ -197,11 +190,8 @@ def test_a_checkpoint_of_other_frames_is_refused(frames, tiny_config, tmp_path):
     train, val = splits(frames)
     config = TrainConfig(max_epochs=2, head_epochs=1, batch_size=8, head_cycles=1)
 
-    def interrupt(epoch, record):
-        raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt)
+    with pytest.raises(Interrupt):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_after(1)[0])
     fewer = train.subset(np.arange(len(train) - 1))
     with pytest.raises(ValueError, match=rf"checkpoint_end_to_end\.pt was trained on other data: train_frames "
                                          rf"{len(train)} \(now {len(fewer)}\), targets_sha256 "):
@@ -226,15 +216,7 @@ def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_
     # The second cycle starts where the first one's fit left the model: its initial validation error is the fit's.
     assert results["head_2"].initial_val_rmse == pytest.approx(min(results["fusion_fit"]["val_rmse"].values()))
 
-    class Interrupt(Exception):
-        pass
-
-    def interrupt_in_the_second_cycle(epoch, record):
-        if len(record_epochs) == 5:  # 1 end-to-end epoch, 3 head epochs, then the 2nd cycle's first
-            raise Interrupt
-        record_epochs.append(epoch)
-
-    record_epochs = []
+    interrupt_in_the_second_cycle, _ = interrupt_after(6)  # 1 end-to-end epoch, 3 head epochs, 2 of the 2nd cycle
     with pytest.raises(Interrupt):
         train_phases(model_for(frames, tiny_config), train, val, config, tmp_path,
                      on_epoch_end=interrupt_in_the_second_cycle)
