@@ -229,7 +229,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, help="use only the first N frames of the scene or dataset")
     parser.add_argument("--epochs", type=int, default=train.max_epochs,
                         help="at most this many end-to-end epochs (default %(default)s, sized for the default scene's "
-                        "16268 training frames: scale it for a smaller or larger data set)")
+                        "32340 training frames: scale it for a smaller or larger data set)")
     parser.add_argument("--head-epochs", type=int, default=train.head_epochs,
                         help="then at most this many epochs of the head alone on cached conv features (default "
                         "%(default)s, sized like --epochs)")

@@ -45,21 +45,21 @@ class TrainConfig:
     cuts six-fold (docs/learning.md).
     Modular recalibration (recalibration.py) trains like the head phase, on clean frames: `recalibration_phase`.
 
-    The epoch counts are sized for the default scene (paper_grid, 16268 training frames, 8 x 1017 end-to-end
-    steps; the head phase's 30 epochs on the frames and their imperfect copy make 30 x 509 steps, in each of its
+    The epoch counts are sized for the default scene (paper_grid, 32340 training frames, 4 x 2022 end-to-end
+    steps; the head phase's 15 epochs on the frames and their imperfect copy make 15 x 1011 steps, in each of its
     `head_cycles` cycles). Three head cycles after 8 end-to-end epochs reached 2.99 mN per bin where one after 13
-    reached 3.25, with `make model` 2.7 minutes longer (docs/learning.md): the head, not the conv trunk, was short of
-    training.
+    reached 3.25 (docs/learning.md): the head, not the conv trunk, was short of training. Then the head was short of
+    data: the same steps over twice the presses (the epochs halved) reached 2.68 mN on the same test frames.
     """
 
-    max_epochs: int = 8
+    max_epochs: int = 4
     batch_size: int = 16          # frames per step; each brings all its cameras through the CNN
     learning_rate: float = 2e-3
     patience: int = 6             # early stopping: epochs without a better validation RMSE
     min_learning_rate: float = 1e-5  # the learning rate follows a cosine from learning_rate down to this
     seed: int = 0
     loss_eps: float = 1e-8        # RMSE = sqrt(MSE + eps): finite gradient at zero error
-    head_epochs: int = 30         # second phase: conv trunk frozen, head trained on cached features
+    head_epochs: int = 15         # second phase: conv trunk frozen, head trained on cached features
     head_learning_rate: float = 4e-3
     head_batch_size: int = 64     # frames per head step: a head step is cheap, larger batches use the cores better
     head_dropout: float | None = 0.0  # dropout of the fully connected layers in the head phase; None: the model's
@@ -70,7 +70,7 @@ class TrainConfig:
     head_misalign_shift_px: float = 2.0  # ... shifted by up to this per axis (pixels) ...
     head_misalign_rotation_deg: float = 2.0  # ... and turned by up to this (degrees); fractions and noise 0: no copy
     head_cycles: int = 3          # head phase, least-squares fit, repeated from there with a new copy this often
-    recalibration_epochs: int = 13  # modular recalibration: epochs of the last layers on cached features
+    recalibration_epochs: int = 7  # modular recalibration: epochs of the last layers on cached features
 
     def __post_init__(self):
         if self.head_epochs < 0:
@@ -109,8 +109,8 @@ class TrainConfig:
         Recalibration trains the same kind of layers on cached features as the head phase. Measured on the
         recalibration study's 3-camera base, all the training data of the former 24 x 24 default grid
         (docs/learning.md): with the end-to-end phase's 16-frame batches at 2e-3, 26 epochs took 184 s for 4.19 mN
-        per bin; with the head phase's 64 frames at 4e-3, 80 s for 4.13 mN. The default of 13 epochs on the twice
-        as large 34 x 34 grid makes the same number of steps.
+        per bin; with the head phase's 64 frames at 4e-3, 80 s for 4.13 mN. The default of 7 epochs on the four times
+        as large 48 x 48 grid makes about the same number of steps (7 x 506 against 26 x 128).
         """
         return self._on_cached_features(self.recalibration_epochs)
 

@@ -20,7 +20,7 @@ from tactile_fusion.pipeline import DEFAULT_SCENE, scene_frames
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 FRAMES = 150
-#: Allowed growth over the shipped test metrics: the first 150 test frames are a sample of the 4648, so their
+#: Allowed growth over the shipped test metrics: the first 150 test frames are a sample of the 9240, so their
 #: RMSE scatters around the shipped value; a stale model is off by much more.
 MARGIN = 1.5
 #: Documented bounds (docs/learning.md) on how far the reduced precisions may deviate per bin from float32.
