@@ -134,7 +134,8 @@ NOT_PHASE_SETTINGS = ("head_cycles", "recalibration_epochs")
 #: config (`TrainConfig.head_phase`) carries the head's epochs as max_epochs (and its learning rate and batch size in
 #: both places; its patience follows its epochs).
 END_TO_END_COMPARED = {k: k for k in END_TO_END_SETTINGS + SHARED_SETTINGS}
-HEAD_COMPARED = {"max_epochs": "head_epochs", **{k: k for k in HEAD_SETTINGS[1:] + SHARED_SETTINGS}}
+HEAD_COMPARED = {"max_epochs": "head_epochs",
+                 **{k: k for k in HEAD_SETTINGS + SHARED_SETTINGS if k != "head_epochs"}}
 
 
 def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
