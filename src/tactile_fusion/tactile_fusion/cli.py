@@ -90,21 +90,21 @@ def _train_config(args) -> TrainConfig:
 
 
 def cmd_train(args) -> int:
-    from tactile_fusion.pipeline import train_and_export, training_frames
+    from tactile_fusion.pipeline import train_and_export, training_splits
 
     _threads(args)
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
     model_config, train_config = _settings(args)
-    frames = training_frames(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
+    splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     if args.dataset:
         source = f"dataset {Path(args.dataset).resolve()}"
     else:
         source = f"scene {Path(args.scene).resolve() if Path(args.scene).is_file() else args.scene}"
-    metrics = train_and_export(sensor, frames, model_config, train_config, args.out, args.resume,
+    metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
                                progress=not args.quiet, threads=args.threads, data_source=source)
-    print(metrics_table({f"{frames.scene} test ({b})": m for b, m in metrics["backends"].items()}))
+    print(metrics_table({f"{splits['test'].scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
     components = model_components(read_model_json(args.out))
     left_out = left_out_components(components)

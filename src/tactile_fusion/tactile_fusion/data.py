@@ -49,6 +49,8 @@ class FrameSet:
         unknown = [c for c in camera_ids if c not in self.camera_ids]
         if unknown:
             raise DatasetMismatchError(f"cameras {unknown} are not in these frames (cameras {list(self.camera_ids)})")
+        if tuple(camera_ids) == self.camera_ids:
+            return self
         pick = [self.camera_ids.index(c) for c in camera_ids]
         return replace(self, images=np.ascontiguousarray(self.images[:, pick]), reference=self.reference[pick],
                        camera_ok=np.ascontiguousarray(self.camera_ok[:, pick]), camera_ids=tuple(camera_ids))
@@ -68,6 +70,13 @@ def split_indices(n_frames: int, seed: int, fractions: tuple[float, float, float
     n_train = n_frames - n_val - n_test
     cuts = {"train": order[:n_train], "val": order[n_train:n_train + n_val], "test": order[n_train + n_val:]}
     return {name: np.sort(idx) for name, idx in cuts.items()}
+
+
+def split_frames(frames: FrameSet, n_frames: int | None = None) -> dict[str, FrameSet]:
+    """The 70/10/20 split of `frames` (of its first `n_frames` when given) drawn from its seed, each split copied
+    into memory: {"train": ..., "val": ..., "test": ...}."""
+    n = len(frames) if n_frames is None else min(n_frames, len(frames))
+    return {name: frames.subset(idx) for name, idx in split_indices(n, frames.seed).items()}
 
 
 def check_frames_match_sensor(camera_ids, rows: int, cols: int, image_shape: tuple[int, int],
@@ -104,7 +113,7 @@ def load_dataset_frames(path: str | Path, sensor: SensorDescription) -> FrameSet
         raise DatasetMismatchError(f"dataset {path}: forces {ds.forces.shape} / reference {ds.reference.shape} do "
                                    f"not match its {n} frames of {c} x {h} x {w} images; rewrite the dataset")
     return FrameSet(images=ds.images, bin_forces_n=np.asarray(ds.forces, dtype=np.float32),
-                    reference=np.asarray(ds.reference), camera_ok=np.asarray(ds.camera_ok, dtype=bool),
+                    reference=np.array(ds.reference), camera_ok=np.asarray(ds.camera_ok, dtype=bool),
                     camera_ids=tuple(meta["camera_ids"]), scene=str(meta["scene"]), seed=int(meta["seed"]))
 
 
@@ -114,22 +123,33 @@ def simulate_frames(sensor: SensorDescription, scene: Scene, indices: np.ndarray
 
     Memory is allocated once for the kept frames only, so a test split of a large scene costs 20 % of it.
     """
+    keep = np.arange(len(scene)) if indices is None else np.asarray(indices)
+    return simulate_splits(sensor, scene, {"frames": keep}, progress)["frames"]
+
+
+def simulate_splits(sensor: SensorDescription, scene: Scene, splits: dict[str, np.ndarray],
+                    progress: bool = False) -> dict[str, FrameSet]:
+    """Stream `scene` through the simulator once and keep the frames at each split's indices in a FrameSet of its
+    own: {name: frames}. The streamed frames go straight into their split, so training holds a scene once, not as a
+    whole and again as copies of its parts."""
     sim = Simulator(sensor)
-    n_total = len(scene)
-    keep = np.arange(n_total) if indices is None else np.asarray(indices)
-    slot = np.full(n_total, -1)
-    slot[keep] = np.arange(len(keep))
     c = sensor.n_cameras
     w, h = sensor.cameras[0].output_size
-    images = np.empty((len(keep), c, h, w), dtype=np.uint8)
-    forces = np.empty((len(keep), sensor.grid.rows, sensor.grid.cols, 3), dtype=np.float32)
-    camera_ok = np.empty((len(keep), c), dtype=bool)
-    last = int(keep.max()) + 1 if len(keep) else 0
+    rows, cols = sensor.grid.rows, sensor.grid.cols
+    kept = {name: FrameSet(images=np.empty((len(idx), c, h, w), dtype=np.uint8),
+                           bin_forces_n=np.empty((len(idx), rows, cols, 3), dtype=np.float32),
+                           reference=sim.reference_images(), camera_ok=np.empty((len(idx), c), dtype=bool),
+                           camera_ids=sensor.camera_ids, scene=scene.name, seed=scene.seed)
+            for name, idx in splits.items()}
+    slots = {}  # frame index -> (split name, position in that split)
+    for name, idx in splits.items():
+        slots.update((int(frame), (name, slot)) for slot, frame in enumerate(np.asarray(idx)))
+    last = max(slots) + 1 if slots else 0
     stream = sim.stream(scene, frames=last) if last else iter(())
     for frame in tqdm(stream, total=last, desc=f"simulate {scene.name}", unit="frame", disable=not progress):
-        if slot[frame.index] >= 0:
-            images[slot[frame.index]] = frame.images
-            forces[slot[frame.index]] = frame.bin_forces_n
-            camera_ok[slot[frame.index]] = frame.camera_ok
-    return FrameSet(images=images, bin_forces_n=forces, reference=sim.reference_images(), camera_ok=camera_ok,
-                    camera_ids=sensor.camera_ids, scene=scene.name, seed=scene.seed)
+        if frame.index in slots:
+            name, slot = slots[frame.index]
+            kept[name].images[slot] = frame.images
+            kept[name].bin_forces_n[slot] = frame.bin_forces_n
+            kept[name].camera_ok[slot] = frame.camera_ok
+    return kept

@@ -24,7 +24,15 @@ from tactile_fusion.artifacts import (
     save_model,
     write_json,
 )
-from tactile_fusion.data import DatasetMismatchError, FrameSet, load_dataset_frames, simulate_frames, split_indices
+from tactile_fusion.data import (
+    DatasetMismatchError,
+    FrameSet,
+    load_dataset_frames,
+    simulate_frames,
+    simulate_splits,
+    split_frames,
+    split_indices,
+)
 from tactile_fusion.evaluation import evaluate
 from tactile_fusion.export import export_onnx, quantize_int8
 from tactile_fusion.inference import BACKENDS, load_predictor
@@ -55,29 +63,25 @@ def scene_frames(sensor: SensorDescription, scene_name: str, split: str | None =
     return simulate_frames(sensor, scene, indices, progress=progress)
 
 
-def training_frames(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None,
-                    frames: int | None, progress: bool) -> FrameSet:
-    """All frames to split for training: a written dataset, or a scene (its first `frames` frames)."""
+def training_splits(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None,
+                    frames: int | None, progress: bool) -> dict[str, FrameSet]:
+    """The 70/10/20 split of the training data, drawn from its seed: a written dataset or a scene (its first
+    `frames` frames). {"train": ..., "val": ..., "test": ...}."""
     if dataset is not None:
-        data = load_dataset_frames(dataset, sensor)
-        return data if frames is None else data.subset(np.arange(min(frames, len(data))))
-    return scene_frames(sensor, scene_name or DEFAULT_SCENE, frames=frames, progress=progress)
+        return split_frames(load_dataset_frames(dataset, sensor), frames)
+    scene = load_scene(scene_name or DEFAULT_SCENE, sensor)
+    n_frames = len(scene) if frames is None else min(frames, len(scene))
+    return simulate_splits(sensor, scene, split_indices(n_frames, scene.seed), progress)
 
 
-def train_model(frames: FrameSet, model_config: ModelConfig, train_config: TrainConfig,
-                checkpoint_dir: Path | None, resume: bool, progress: bool) -> tuple[ForceFusionNet, dict, dict]:
-    """Split `frames` 70/10/20 from their seed, train on 70 % with early stopping on 10 %.
-
-    Returns the model, the training results of each phase and the split (indices into `frames`).
-    """
-    split = split_indices(len(frames), frames.seed)
-    train, val = frames.subset(split["train"]), frames.subset(split["val"])
+def train_model(train: FrameSet, val: FrameSet, model_config: ModelConfig, train_config: TrainConfig,
+                checkpoint_dir: Path | None, resume: bool, progress: bool) -> tuple[ForceFusionNet, dict]:
+    """Train on `train` with early stopping on `val`; returns the model and the training results of each phase."""
     scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
-    rows, cols = frames.bin_forces_n.shape[1:3]
-    model = build_model(model_config, frames.camera_ids, rows, cols, scale, train_config.seed,
+    rows, cols = train.bin_forces_n.shape[1:3]
+    model = build_model(model_config, train.camera_ids, rows, cols, scale, train_config.seed,
                         estimated_components(train.bin_forces_n))
-    results = train_phases(model, train, val, train_config, checkpoint_dir, resume, progress)
-    return model, results, split
+    return model, train_phases(model, train, val, train_config, checkpoint_dir, resume, progress)
 
 
 def export_all(model: ForceFusionNet, out_dir: Path) -> dict:
@@ -105,26 +109,30 @@ def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> 
     return results, predictions
 
 
-def train_and_export(sensor: SensorDescription, frames: FrameSet, model_config: ModelConfig,
+def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], model_config: ModelConfig,
                      train_config: TrainConfig, out_dir: str | Path, resume: bool = False, progress: bool = True,
                      threads: int | None = None, data_source: str = "") -> dict:
-    """The whole `tactile-fusion train`: train, save, export, evaluate on the test split, write the JSON files.
+    """The whole `tactile-fusion train` on the `training_splits` of some data: train, save, export, evaluate on
+    the test split, write the JSON files.
 
     Returns the metrics dict that is written to metrics.json.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    model, results, split = train_model(frames, model_config, train_config, out_dir, resume, progress)
+    model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
+                                 progress)
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
     export_all(model, out_dir)
-    metrics = record_test_metrics(out_dir, frames.subset(split["test"]), data_source, threads)
+    test = splits["test"]
+    metrics = record_test_metrics(out_dir, test, data_source, threads)
     write_json(out_dir / TRAINING_JSON, {
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
-        "data": {"source": data_source, "scene": frames.scene, "seed": frames.seed, "frames": len(frames),
-                 "split_sizes": {k: len(v) for k, v in split.items()}},
+        "data": {"source": data_source, "scene": test.scene, "seed": test.seed,
+                 "frames": sum(len(v) for v in splits.values()),
+                 "split_sizes": {k: len(v) for k, v in splits.items()}},
         "sensor": sensor.name,
         "phases": {p: r.to_dict() if isinstance(r, TrainResult) else r for p, r in results.items()},
         "wall_time_s": {"training": training_wall_s,

@@ -18,10 +18,10 @@ import numpy as np
 
 from tactile_description import SensorDescription
 from tactile_fusion.artifacts import write_json
-from tactile_fusion.data import split_indices
+from tactile_fusion.data import SPLITS
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
-from tactile_fusion.pipeline import train_model, training_frames
+from tactile_fusion.pipeline import train_model, training_splits
 from tactile_fusion.plots import least_squares_line, plot_recalibration
 from tactile_fusion.recalibration import predict_torch, recalibration_sweep
 from tactile_fusion.training import TrainConfig
@@ -41,16 +41,15 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
         raise ValueError(f"--fractions must be numbers in (0, 1], got {fractions}")
     fractions = sorted(fractions)
     train_config.recalibration_phase()  # settings that cannot recalibrate fail now, not after two trainings
-    all_frames = training_frames(sensor, scene, dataset, frames, progress)
+    splits = training_splits(sensor, scene, dataset, frames, progress)
+    train, val, test = (splits[k] for k in SPLITS)
     base_ids = tuple(c for c in sensor.camera_ids if c != added_camera)
-    split = split_indices(len(all_frames), all_frames.seed)
-    train, val, test = (all_frames.subset(split[k]) for k in ("train", "val", "test"))
 
     timings, models = {}, {}
     for name, camera_ids in (("base", base_ids), ("full", sensor.camera_ids)):
         started = time.perf_counter()
-        models[name], _, _ = train_model(all_frames.select_cameras(camera_ids), model_config, train_config, None,
-                                         False, progress)
+        models[name], _ = train_model(train.select_cameras(camera_ids), val.select_cameras(camera_ids), model_config,
+                                      train_config, None, False, progress)
         timings[name] = time.perf_counter() - started
     full_metrics = force_metrics(predict_torch(models["full"], test), test.bin_forces_n)
     base_metrics = force_metrics(predict_torch(models["base"], test.select_cameras(base_ids)), test.bin_forces_n)
@@ -62,8 +61,8 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     report = {
         "added_camera": added_camera,
         "base_cameras": len(base_ids),
-        "data": {"scene": all_frames.scene, "seed": all_frames.seed, "frames": len(all_frames),
-                 "split_sizes": {k: len(v) for k, v in split.items()}},
+        "data": {"scene": test.scene, "seed": test.seed, "frames": sum(len(v) for v in splits.values()),
+                 "split_sizes": {k: len(v) for k, v in splits.items()}},
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
         "base_training": {"wall_time_s": timings["base"], "metrics": base_metrics},

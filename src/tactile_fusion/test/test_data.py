@@ -11,8 +11,11 @@ from tactile_fusion.data import (
     check_frames_match_sensor,
     load_dataset_frames,
     simulate_frames,
+    simulate_splits,
+    split_frames,
     split_indices,
 )
+from tactile_fusion.pipeline import training_splits
 from tactile_sim import Simulator, load_scene, write_dataset
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
@@ -49,11 +52,30 @@ def test_simulated_frames_keep_only_the_requested_indices(sensor):
     assert every.bin_forces_n[125:, :, :, 2].sum() > 0  # presses after the rest frames
 
 
+def test_splits_are_simulated_in_one_stream_and_equal_the_split_of_the_whole(sensor):
+    scene = load_scene("paper_grid", sensor)
+    every = simulate_frames(sensor, scene, np.arange(130))
+    parts = simulate_splits(sensor, scene, {"late": np.array([127, 121]), "early": np.array([3])})
+    np.testing.assert_array_equal(parts["late"].images, every.images[[127, 121]])
+    np.testing.assert_array_equal(parts["early"].bin_forces_n, every.bin_forces_n[[3]])
+    np.testing.assert_array_equal(parts["early"].reference, every.reference)
+    # `tactile-fusion train --frames 130`: the same frames as splitting the first 130 frames afterwards.
+    trained_on, split_after = training_splits(sensor, "paper_grid", None, 130, False), split_frames(every)
+    assert [len(trained_on[k]) for k in ("train", "val", "test")] == [91, 13, 26]
+    for name, part in split_after.items():
+        np.testing.assert_array_equal(trained_on[name].images, part.images)
+        np.testing.assert_array_equal(trained_on[name].bin_forces_n, part.bin_forces_n)
+        np.testing.assert_array_equal(trained_on[name].camera_ok, part.camera_ok)
+
+
 def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sensor, tmp_path):
     sim = Simulator(sensor)
     path = write_dataset(sim, load_scene("paper_grid", sensor), tmp_path / "ds", progress=False, frames=6)
     frames = load_dataset_frames(path, sensor)
     assert len(frames) == 6 and frames.camera_ids == sensor.camera_ids and frames.scene == "paper_grid"
+    assert frames.reference.flags.writeable  # torch warns about (and must not write into) a read-only array
+    first_five = split_frames(frames, 5)
+    assert sum(len(part) for part in first_five.values()) == 5 and first_five["test"].seed == frames.seed
     skin = load_sensor(CONFIG / "skin_3x3.yaml")
     with pytest.raises(DatasetMismatchError, match=r"cameras \['cam0', 'cam1', 'cam2', 'cam3'\].*regenerate"):
         load_dataset_frames(path, skin)
@@ -73,3 +95,4 @@ def test_select_cameras_reorders_and_rejects_unknown_ids(frames):
     np.testing.assert_array_equal(picked.reference[0], frames.reference[1])
     with pytest.raises(DatasetMismatchError, match="cam7"):
         frames.select_cameras(("cam7",))
+    assert frames.select_cameras(frames.camera_ids) is frames  # the same cameras: no copy of the images

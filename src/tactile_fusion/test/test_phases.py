@@ -407,10 +407,10 @@ def test_training_leaves_out_the_components_the_training_forces_never_excite(fra
     vertical = frames.subset(np.arange(len(frames)))
     vertical.bin_forces_n[..., :2] = 0.0  # presses without shear
     config = TrainConfig(max_epochs=1, batch_size=8, head_epochs=1)
-    model, _, _ = train_model(vertical, tiny_config, config, None, False, False)
+    model, _ = train_model(*splits(vertical), tiny_config, config, None, False, False)
     assert model.components == ("fz",) and model.fusion.expand.out_features == 3 * 4
     assert np.all(predict_torch(model, vertical)[..., :2] == 0.0)
-    assert train_model(frames, tiny_config, config, None, False, False)[0].components == ("fx", "fy", "fz")
+    assert train_model(*splits(frames), tiny_config, config, None, False, False)[0].components == ("fx", "fy", "fz")
 
 
 def test_fraction_subsets_are_nested_and_seeded(frames):
