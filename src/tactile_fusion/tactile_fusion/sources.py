@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,10 @@ from tactile_sim.effects import defocus, misalign
 
 #: Where a CachedSource cuts the network: after the conv trunk, or after the first fully connected layer.
 CUTS = ("trunk", "hidden")
+#: Frames per forward pass when a CachedSource fills its cache. Small batches keep the activations in the CPU's caches:
+#: 4 frames (16 images) ran the conv trunk 1.8x faster than 32 (0.59 against 1.04 s per 1024 frames, two threads,
+#: the same features to the bit).
+FRONT_BATCH_FRAMES = 4
 
 
 class ImageSource:
@@ -56,18 +61,16 @@ class CachedSource:
 
     The front part must stay frozen while this source is used (the caller sets requires_grad False on it).
     augmentation: if given and active, the source holds 2 N samples: the N frames, then an imperfect copy of each
-    (`Augmentation.apply`, drawn per chunk of `batch_size` frames from (`seed`, the chunk's first frame)) with the
-    same targets (sample i + N has frame i's).
+    (`Augmentation.apply_each`: frame i drawn from (`seed`, i)) with the same targets (sample i + N has frame i's).
     """
 
-    def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, batch_size: int = 32,
-                 augmentation: Augmentation | None = None, seed: int = 0):
+    def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, augmentation: Augmentation | None = None,
+                 seed: int = 0):
         if cut not in CUTS:
             raise ValueError(f"CachedSource: cut must be one of {CUTS}, got {cut!r}")
         self.cut = cut
-        self.batch_size = batch_size
         self.force_scale_n = model.force_scale_n
-        self.features = self._front(model, frames, cut, batch_size)                 # (N, C, features at the cut)
+        self.features = self._front(model, frames, cut)                              # (N, C, features at the cut)
         self.targets = torch.from_numpy(np.asarray(frames.bin_forces_n))            # (N, rows, cols, 3), once
         self.redraw_copy(model, frames, augmentation, seed)
 
@@ -77,20 +80,26 @@ class CachedSource:
         frames' own features, which do not change, are kept rather than computed again."""
         self.features = self.features[:len(self.targets)]
         if augmentation is not None and augmentation.active:
-            copy = self._front(model, frames, self.cut, self.batch_size, lambda images, start: augmentation.apply(
-                images, np.random.default_rng([seed, start])))
+            copy = self._front(model, frames, self.cut,
+                               lambda images, start: augmentation.apply_each(images, seed, start))
             self.features = torch.cat([self.features, copy])
+
+    def frames_only(self) -> CachedSource:
+        """This source without the imperfect copy: the frames' own cached features (shared, not copied)."""
+        view = copy.copy(self)
+        view.features = self.features[:len(self.targets)]
+        return view
 
     @staticmethod
     @torch.no_grad()
-    def _front(model: ForceFusionNet, frames: FrameSet, cut: str, batch_size: int, change=None) -> torch.Tensor:
+    def _front(model: ForceFusionNet, frames: FrameSet, cut: str, change=None) -> torch.Tensor:
         """(N, C, features at the cut) of `frames`, each chunk of images first passed through
         change(images, first frame index) if given."""
         reference = torch.from_numpy(np.asarray(frames.reference))
         chunks = []
         model.eval()
-        for start in range(0, len(frames), batch_size):
-            images = np.asarray(frames.images[start:start + batch_size])
+        for start in range(0, len(frames), FRONT_BATCH_FRAMES):
+            images = np.asarray(frames.images[start:start + FRONT_BATCH_FRAMES])
             if change is not None:
                 images = change(images, start)
             difference = difference_images(torch.from_numpy(images), reference)
@@ -166,6 +175,12 @@ class Augmentation:
         """Whether `apply` changes anything."""
         return self.noise_sigma > 0 or self.blur_fraction > 0 or self.misalign_fraction > 0
 
+    def apply_each(self, images: np.ndarray, seed: int, first_index: int) -> np.ndarray:
+        """`apply` frame by frame, frame `first_index + i` drawn from (seed, first_index + i): a frame's copy does not
+        depend on which frames share its batch."""
+        return np.stack([self.apply(image[None], np.random.default_rng([seed, first_index + i]))[0]
+                         for i, image in enumerate(images)])
+
     def apply(self, images: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """(N, C, H, W) uint8 frames -> a changed uint8 copy (rounded and clipped, never wrapped)."""
         out = np.array(images, dtype=np.uint8)
@@ -182,9 +197,11 @@ class Augmentation:
             for c in range(out.shape[1]):
                 out[i, c] = defocus(out[i, c], sigmas[i])
         if self.noise_sigma > 0:
-            sigma = rng.uniform(0.0, self.noise_sigma, len(out)).astype(np.float32)[:, None, None, None]
-            noisy = out + rng.standard_normal(out.shape, dtype=np.float32) * sigma
-            out = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+            # torch's normal generator is vectorised: 3x faster than numpy's for the copy's 260 M pixels per cycle.
+            sigma = torch.from_numpy(rng.uniform(0.0, self.noise_sigma, len(out)).astype(np.float32))
+            generator = torch.Generator().manual_seed(int(rng.integers(2**63)))
+            noisy = torch.from_numpy(out) + torch.randn(out.shape, generator=generator) * sigma[:, None, None, None]
+            out = noisy.round_().clamp_(0, 255).to(torch.uint8).numpy()
         return out
 
 

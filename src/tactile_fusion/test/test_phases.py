@@ -1,5 +1,6 @@
 """The training phases after end-to-end: head on cached features, least-squares fusion fit, recalibration."""
 
+import copy
 from dataclasses import fields, replace
 
 import numpy as np
@@ -235,6 +236,21 @@ def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_
         TrainConfig(head_cycles=0)
 
 
+def test_the_fusion_fit_learns_from_the_frames_alone_not_their_imperfect_copy(frames, tiny_config):
+    train, val = splits(frames)
+    model = model_for(frames, tiny_config)
+    config = TrainConfig(max_epochs=1, head_epochs=1, batch_size=8, seed=1, head_cycles=1, head_noise_sigma=8.0)
+    results = train_phases(model, train, val, config)
+    # The validation score of every ridge depends only on the head's features and the frames fitted.
+    sources = {"frames": CachedSource(model, train, "trunk"),
+               "frames and copy": CachedSource(model, train, "trunk", augmentation=config.head_augmentation(),
+                                               seed=config.seed)}
+    scores = {name: fit_fusion(copy.deepcopy(model), source, CachedSource(model, val, "trunk"))["val_rmse"]
+              for name, source in sources.items()}
+    assert scores["frames"] == pytest.approx(results["fusion_fit"]["val_rmse"], rel=1e-9)
+    assert scores["frames and copy"] != pytest.approx(results["fusion_fit"]["val_rmse"], rel=1e-6)
+
+
 def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(frames, tiny_config):
     train, val = splits(frames)
     model = model_for(frames, tiny_config)
@@ -356,6 +372,12 @@ def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames,
     assert not torch.equal(redrawn.features[n:], both.features[n:])
     redrawn.redraw_copy(model, train, None, seed=3)
     assert torch.equal(redrawn.features, clean.features)
+    # Frame i's copy is drawn from (seed, i) alone, whatever frames share its batch.
+    images = np.asarray(train.images[:6])
+    np.testing.assert_array_equal(augmentation.apply_each(images, 2, 0)[4:], augmentation.apply_each(images[4:], 2, 4))
+    assert not np.array_equal(augmentation.apply_each(images, 2, 0)[4:], augmentation.apply_each(images[4:], 2, 0))
+    frames_only = both.frames_only()
+    assert len(frames_only) == n and torch.equal(frames_only.features, clean.features) and len(both) == 2 * n
 
     config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, seed=1)
     plain_config = replace(config, head_noise_sigma=0.0, head_blur_fraction=0.0, head_misalign_fraction=0.0)
