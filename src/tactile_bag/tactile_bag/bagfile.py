@@ -112,11 +112,28 @@ class BagReader:
         connections = [c for c in self._reader.connections if c.topic in wanted]
         if not connections:
             return
+        self._check_definitions(connections)
         try:
             for connection, time_ns, raw in self._reader.messages(connections=connections):
                 yield connection.topic, connection.msgtype, time_ns, raw
         except DAMAGED_BAG_ERRORS as exc:
             raise BagError(f"bag {self.path} is damaged: reading its messages failed ({exc})") from exc
+
+    def _check_definitions(self, connections) -> None:
+        """BagError if a topic was recorded with another definition of its type than the installed one (its type
+        hash, RIHS01, differs): its bytes would be decoded, or republished, as a message they are not. Bags that
+        record no hash (rosbag2 before version 7) cannot be checked."""
+        recorded = {c.msgtype: (c.topic, c.digest) for c in connections if c.digest}
+        try:
+            typestore = bag_typestore(recorded)
+        except MessageTypeError as exc:
+            raise BagError(f"bag {self.path}: {exc}") from exc
+        for msgtype, (topic, digest) in recorded.items():
+            installed = typestore.hash_rihs01(msgtype)
+            if digest != installed:
+                raise BagError(f"bag {self.path}: topic {topic} was recorded with another definition of {msgtype} "
+                               f"(type hash {digest}) than the installed one ({installed}); read it with the "
+                               "version of the interface package that recorded it")
 
     def close(self) -> None:
         self._reader.close()

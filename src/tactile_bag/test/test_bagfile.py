@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import get_types_from_msg, get_typestore
 from sensor_msgs.msg import Image
 
-from tactile_bag.bagfile import BagError, BagReader, BagWriter
-from tactile_bag.message_types import MessageTypeError, bag_typestore, message_class
+from tactile_bag.bagfile import BAG_VERSION, BagError, BagReader, BagWriter
+from tactile_bag.message_types import STORE, MessageTypeError, bag_typestore, message_class
 from tactile_bag.topics import FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_msgs.msg import ForceDistribution
@@ -117,6 +119,27 @@ def test_damaged_metadata(sim_bag, tmp_path):
     (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [1")
     with pytest.raises(BagError, match="cannot be opened"):
         BagReader(bag)
+
+
+def test_a_topic_recorded_with_another_definition_of_its_type_is_refused(tmp_path):
+    """A bag recorded with an older tactile_msgs (here: ForceDistribution without missing_camera_ids) would be
+    decoded as the installed type: refused, naming both type hashes."""
+    older = get_typestore(STORE)
+    definition = (Path(get_package_share_directory("tactile_msgs")) / "msg" / "ForceDistribution.msg").read_text()
+    assert "string[] missing_camera_ids" in definition
+    older.register(get_types_from_msg(definition.replace("string[] missing_camera_ids", ""), FORCES_TYPE))
+    writer = Writer(tmp_path / "older", version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    connection = writer.add_connection(GROUND_TRUTH_TOPIC, FORCES_TYPE, typestore=older)
+    writer.write(connection, 1, bytes(64))  # never decoded: the check comes first
+    writer.close()
+    with BagReader(tmp_path / "older") as bag:
+        assert bag.topics == {GROUND_TRUTH_TOPIC: FORCES_TYPE} and bag.counts == {GROUND_TRUTH_TOPIC: 1}
+        installed = bag_typestore([FORCES_TYPE]).hash_rihs01(FORCES_TYPE)
+        with pytest.raises(BagError, match=rf"topic {GROUND_TRUTH_TOPIC} was recorded with another definition of "
+                                           rf"{FORCES_TYPE} \(type hash RIHS01_\w+\) than the installed one "
+                                           rf"\({installed}\)"):
+            list(bag.messages())
 
 
 def test_unknown_topic_names_what_the_bag_has(sim_bag):
