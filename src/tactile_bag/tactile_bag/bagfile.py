@@ -93,6 +93,7 @@ class BagReader:
                            "metadata.yaml and its .mcap or .db3 file, complete (a recorder killed with SIGKILL "
                            "leaves an unreadable file)") from exc
         self.topics = {c.topic: c.msgtype for c in self._reader.connections}
+        self._checked_topics: set[str] = set()
         self.counts = dict.fromkeys(self.topics, 0)
         for connection in self._reader.connections:
             self.counts[connection.topic] += connection.msgcount
@@ -112,28 +113,33 @@ class BagReader:
         connections = [c for c in self._reader.connections if c.topic in wanted]
         if not connections:
             return
-        self._check_definitions(connections)
+        self.check_definitions(wanted)
         try:
             for connection, time_ns, raw in self._reader.messages(connections=connections):
                 yield connection.topic, connection.msgtype, time_ns, raw
         except DAMAGED_BAG_ERRORS as exc:
             raise BagError(f"bag {self.path} is damaged: reading its messages failed ({exc})") from exc
 
-    def _check_definitions(self, connections) -> None:
-        """BagError if a topic was recorded with another definition of its type than the installed one (its type
-        hash, RIHS01, differs): its bytes would be decoded, or republished, as a message they are not. Bags that
-        record no hash (rosbag2 before version 7) cannot be checked."""
-        recorded = {c.msgtype: (c.topic, c.digest) for c in connections if c.digest}
+    def check_definitions(self, topics: Iterable[str]) -> None:
+        """BagError if one of `topics` was recorded with another definition of its type than the installed one (its
+        type hash, RIHS01, differs): its bytes would be decoded, or republished, as a message they are not. Topics
+        recorded without a hash (rosbag2 before version 7, or a recorder that could not resolve the type) cannot be
+        checked and pass. Each topic is checked once per reader."""
+        unchecked = set(topics) - self._checked_topics
+        connections = [c for c in self._reader.connections if c.topic in unchecked]
+        hashed = [c for c in connections if c.digest]
         try:
-            typestore = bag_typestore(recorded)
+            typestore = bag_typestore({c.msgtype for c in hashed})
         except MessageTypeError as exc:
             raise BagError(f"bag {self.path}: {exc}") from exc
-        for msgtype, (topic, digest) in recorded.items():
-            installed = typestore.hash_rihs01(msgtype)
-            if digest != installed:
-                raise BagError(f"bag {self.path}: topic {topic} was recorded with another definition of {msgtype} "
-                               f"(type hash {digest}) than the installed one ({installed}); read it with the "
-                               "version of the interface package that recorded it")
+        for connection in hashed:
+            installed = typestore.hash_rihs01(connection.msgtype)
+            if connection.digest != installed:
+                raise BagError(f"bag {self.path}: topic {connection.topic} was recorded with another definition of "
+                               f"{connection.msgtype} (type hash {connection.digest}) than the installed one "
+                               f"({installed}); read it with the version of the interface package that recorded it, "
+                               "or leave the topic out (--topics)")
+        self._checked_topics.update(c.topic for c in connections)
 
     def close(self) -> None:
         self._reader.close()

@@ -36,6 +36,7 @@ def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequen
         selected = bag.require_topics([absolute_topic(t) for t in topics]) if topics else sorted(bag.topics)
         if not sum(bag.counts[t] for t in selected):
             raise BagError(f"bag {bag.path} holds no messages on {selected}: nothing to play")
+        bag.check_definitions(selected)  # before any publisher appears on the graph
         node = Node("tactile_bag_player")
         try:
             try:

@@ -1,6 +1,7 @@
 """Writing bags with rosbags and reading them back; what a damaged or missing bag gives."""
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from sensor_msgs.msg import Image
 from tactile_bag.bagfile import BAG_VERSION, BagError, BagReader, BagWriter
 from tactile_bag.message_types import STORE, MessageTypeError, bag_typestore, message_class
 from tactile_bag.topics import FORCES_TYPE, IMAGE_TYPE
-from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
+from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
 from tactile_msgs.msg import ForceDistribution
 
 
@@ -123,23 +124,37 @@ def test_damaged_metadata(sim_bag, tmp_path):
 
 def test_a_topic_recorded_with_another_definition_of_its_type_is_refused(tmp_path):
     """A bag recorded with an older tactile_msgs (here: ForceDistribution without missing_camera_ids) would be
-    decoded as the installed type: refused, naming both type hashes."""
+    decoded as the installed type: refused, naming the topic and both type hashes. Each topic is checked on its own,
+    so the other topic of the same type, recorded with the installed definition, is still read."""
     older = get_typestore(STORE)
     definition = (Path(get_package_share_directory("tactile_msgs")) / "msg" / "ForceDistribution.msg").read_text()
     assert "string[] missing_camera_ids" in definition
     older.register(get_types_from_msg(definition.replace("string[] missing_camera_ids", ""), FORCES_TYPE))
-    writer = Writer(tmp_path / "older", version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+    writer = Writer(tmp_path / "mixed", version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
     writer.open()
-    connection = writer.add_connection(GROUND_TRUTH_TOPIC, FORCES_TYPE, typestore=older)
-    writer.write(connection, 1, bytes(64))  # never decoded: the check comes first
+    for topic, typestore in ((ESTIMATE_TOPIC, bag_typestore([FORCES_TYPE])), (GROUND_TRUTH_TOPIC, older)):
+        writer.write(writer.add_connection(topic, FORCES_TYPE, typestore=typestore), 1, bytes(64))  # never decoded
     writer.close()
-    with BagReader(tmp_path / "older") as bag:
-        assert bag.topics == {GROUND_TRUTH_TOPIC: FORCES_TYPE} and bag.counts == {GROUND_TRUTH_TOPIC: 1}
+    with BagReader(tmp_path / "mixed") as bag:
+        assert bag.topics == {ESTIMATE_TOPIC: FORCES_TYPE, GROUND_TRUTH_TOPIC: FORCES_TYPE}
+        assert len(list(bag.messages([ESTIMATE_TOPIC]))) == 1
         installed = bag_typestore([FORCES_TYPE]).hash_rihs01(FORCES_TYPE)
-        with pytest.raises(BagError, match=rf"topic {GROUND_TRUTH_TOPIC} was recorded with another definition of "
-                                           rf"{FORCES_TYPE} \(type hash RIHS01_\w+\) than the installed one "
-                                           rf"\({installed}\)"):
-            list(bag.messages())
+        for topics in (None, [GROUND_TRUTH_TOPIC]):
+            with pytest.raises(BagError, match=rf"topic {GROUND_TRUTH_TOPIC} was recorded with another definition "
+                                               rf"of {FORCES_TYPE} \(type hash RIHS01_\w+\) than the installed "
+                                               rf"one \({installed}\);.* or leave the topic out"):
+                list(bag.messages(topics))
+
+
+def test_a_bag_without_type_hashes_is_read_unchecked(sim_bag, sim_frames, tmp_path):
+    """rosbag2 before version 7 recorded no type hash: nothing to check, the messages are read as before."""
+    bag = copy_bag(sim_bag, tmp_path / "unhashed")
+    metadata = bag / "metadata.yaml"
+    unhashed = re.sub(r"type_description_hash:\s*RIHS01_\w+", "type_description_hash: ''", metadata.read_text())
+    assert "RIHS01" not in unhashed
+    metadata.write_text(unhashed)
+    with BagReader(bag) as reader:
+        assert len(list(reader.messages())) == len(sim_frames) * (len(reader.topics))
 
 
 def test_unknown_topic_names_what_the_bag_has(sim_bag):

@@ -246,9 +246,9 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="dropout rate of the fully connected layers in the head phase (default %(default)s; "
                         "the end-to-end phase and recalibration use the model's, 0.1)")
     parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
-                        help="the head phase and the least-squares fusion fit also learn from an imperfect copy of "
-                        "the training frames: Gaussian noise with a standard deviation drawn per frame from [0, "
-                        "this] grey levels (default %(default)s) ...")
+                        help="the head phase also learns from an imperfect copy of the training frames (the "
+                        "least-squares fusion fit from the frames alone): Gaussian noise with a standard deviation "
+                        "drawn per frame from [0, this] grey levels (default %(default)s) ...")
     parser.add_argument("--head-blur-fraction", type=float, default=train.head_blur_fraction,
                         help="... and defocus blur on this share of them (default %(default)s) ...")
     parser.add_argument("--head-blur-sigma-px", type=float, default=train.head_blur_sigma_px,
