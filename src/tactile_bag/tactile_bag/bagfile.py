@@ -127,6 +127,8 @@ class BagReader:
         checked and pass. Each topic is checked once per reader."""
         unchecked = set(topics) - self._checked_topics
         connections = [c for c in self._reader.connections if c.topic in unchecked]
+        if not connections:  # every pass of `play --loop` asks again: no type store to build then
+            return
         hashed = [c for c in connections if c.digest]
         try:
             typestore = bag_typestore({c.msgtype for c in hashed})

@@ -79,6 +79,13 @@ def split_frames(frames: FrameSet, n_frames: int | None = None) -> dict[str, Fra
     return {name: frames.subset(idx) for name, idx in split_indices(n, frames.seed).items()}
 
 
+def describe_splits(splits: dict[str, FrameSet]) -> dict:
+    """What training.json and the recalibration study record of the data: scene, seed, frames and split sizes."""
+    any_split = next(iter(splits.values()))
+    return {"scene": any_split.scene, "seed": any_split.seed, "frames": sum(len(v) for v in splits.values()),
+            "split_sizes": {k: len(v) for k, v in splits.items()}}
+
+
 def check_frames_match_sensor(camera_ids, rows: int, cols: int, image_shape: tuple[int, int],
                               sensor: SensorDescription, what: str) -> None:
     """Raise DatasetMismatchError unless the frames' cameras, bin grid and image size are the sensor's.

@@ -27,6 +27,7 @@ from tactile_fusion.artifacts import (
 from tactile_fusion.data import (
     DatasetMismatchError,
     FrameSet,
+    describe_splits,
     load_dataset_frames,
     simulate_frames,
     simulate_splits,
@@ -125,14 +126,11 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
     export_all(model, out_dir)
-    test = splits["test"]
-    metrics = record_test_metrics(out_dir, test, data_source, threads)
+    metrics = record_test_metrics(out_dir, splits["test"], data_source, threads)
     write_json(out_dir / TRAINING_JSON, {
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
-        "data": {"source": data_source, "scene": test.scene, "seed": test.seed,
-                 "frames": sum(len(v) for v in splits.values()),
-                 "split_sizes": {k: len(v) for k, v in splits.items()}},
+        "data": {"source": data_source, **describe_splits(splits)},
         "sensor": sensor.name,
         "phases": {p: r.to_dict() if isinstance(r, TrainResult) else r for p, r in results.items()},
         "wall_time_s": {"training": training_wall_s,

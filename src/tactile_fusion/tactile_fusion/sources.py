@@ -78,17 +78,21 @@ class CachedSource:
                     seed: int) -> None:
         """Replace the imperfect copy (if any) by one drawn from `seed`, as the constructor would with this seed; the
         frames' own features, which do not change, are kept rather than computed again."""
-        self.features = self.features[:len(self.targets)]
+        self.features = self._frame_features()
         if augmentation is not None and augmentation.active:
             augmented = self._front(model, frames, self.cut,
-                               lambda images, start: augmentation.apply_each(images, seed, start))
+                                    lambda images, start: augmentation.apply_each(images, seed, start))
             self.features = torch.cat([self.features, augmented])
 
     def frames_only(self) -> CachedSource:
         """This source without the imperfect copy: the frames' own cached features (shared, not copied)."""
         view = copy.copy(self)
-        view.features = self.features[:len(self.targets)]
+        view.features = self._frame_features()
         return view
+
+    def _frame_features(self) -> torch.Tensor:
+        """The cached features of the frames themselves, without those of the copy (a view)."""
+        return self.features[:len(self.targets)]
 
     @staticmethod
     @torch.no_grad()

@@ -18,7 +18,7 @@ import numpy as np
 
 from tactile_description import SensorDescription
 from tactile_fusion.artifacts import write_json
-from tactile_fusion.data import SPLITS
+from tactile_fusion.data import SPLITS, describe_splits
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.pipeline import train_model, training_splits
@@ -61,8 +61,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     report = {
         "added_camera": added_camera,
         "base_cameras": len(base_ids),
-        "data": {"scene": test.scene, "seed": test.seed, "frames": sum(len(v) for v in splits.values()),
-                 "split_sizes": {k: len(v) for k, v in splits.items()}},
+        "data": describe_splits(splits),
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
         "base_training": {"wall_time_s": timings["base"], "metrics": base_metrics},

@@ -243,11 +243,11 @@ def test_the_fusion_fit_learns_from_the_frames_alone_not_their_imperfect_copy(fr
     config = TrainConfig(max_epochs=1, head_epochs=1, batch_size=8, seed=1, head_cycles=1, head_noise_sigma=8.0)
     results = train_phases(model, train, val, config)
     # The validation score of every ridge depends only on the head's features and the frames fitted.
-    sources = {"frames": CachedSource(model, train, "trunk"),
-               "frames and copy": CachedSource(model, train, "trunk", augmentation=config.head_augmentation(),
-                                               seed=config.seed)}
-    scores = {name: fit_fusion(copy.deepcopy(model), source, CachedSource(model, val, "trunk"))["val_rmse"]
-              for name, source in sources.items()}
+    fitted_rows = {"frames": CachedSource(model, train, "trunk"),
+                   "frames and copy": CachedSource(model, train, "trunk", augmentation=config.head_augmentation(),
+                                                   seed=config.seed)}
+    scores = {name: fit_fusion(copy.deepcopy(model), rows, CachedSource(model, val, "trunk"))["val_rmse"]
+              for name, rows in fitted_rows.items()}
     assert scores["frames"] == pytest.approx(results["fusion_fit"]["val_rmse"], rel=1e-9)
     assert scores["frames and copy"] != pytest.approx(results["fusion_fit"]["val_rmse"], rel=1e-6)
 
