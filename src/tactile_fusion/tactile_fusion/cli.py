@@ -38,7 +38,7 @@ from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_pred
 from tactile_fusion.metrics import metrics_table
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig, left_out_components
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
-from tactile_fusion.training import CheckpointMismatchError, TrainConfig
+from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
 
 
@@ -86,7 +86,8 @@ def _train_config(args) -> TrainConfig:
                        head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px,
                        head_misalign_fraction=args.head_misalign_fraction,
                        head_misalign_shift_px=args.head_misalign_shift_px,
-                       head_misalign_rotation_deg=args.head_misalign_rotation_deg, head_cycles=args.head_cycles)
+                       head_misalign_rotation_deg=args.head_misalign_rotation_deg, head_cycles=args.head_cycles,
+                       head_precision=args.head_precision)
 
 
 def cmd_train(args) -> int:
@@ -262,6 +263,10 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="... and turned by up to this (degrees, default %(default)s). --head-noise-sigma 0 "
                         "--head-blur-fraction 0 --head-misalign-fraction 0: no copy, the head learns from the frames "
                         "alone (see docs/learning.md)")
+    parser.add_argument("--head-precision", choices=list(STEP_PRECISIONS), default=train.head_precision,
+                        help="precision of the forward pass in the steps of the head phase and of recalibration "
+                        "(default %(default)s: bf16 where the CPU has bf16 instructions, else fp32; see "
+                        "docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
     parser.add_argument("--seed", type=int, default=train.seed)
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "

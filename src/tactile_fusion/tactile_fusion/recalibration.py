@@ -63,8 +63,9 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     started = time.perf_counter()
     model = add_camera(base, train.camera_ids)
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
-    result = fit(model, cached_train, cached_val, config.recalibration_phase(), progress=progress,
-                 desc="recalibrate")
+    phase = config.recalibration_phase()
+    result = fit(model, cached_train, cached_val, phase, progress=progress, desc="recalibrate",
+                 bf16_steps=phase.steps_in_bf16())
     fit_fusion(model, cached_train, cached_val)
     return model, result, time.perf_counter() - started
 

@@ -210,7 +210,8 @@ def test_every_training_setting_belongs_to_one_phase_or_none():
 
 def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_config, tmp_path):
     train, val = splits(frames)
-    config = TrainConfig(max_epochs=1, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=2, head_cycles=2)
+    config = TrainConfig(max_epochs=1, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=2, head_cycles=2,
+                         head_precision="bf16")
     two = model_for(frames, tiny_config)
     results = train_phases(two, train, val, config)
     assert set(results) == {"end_to_end", "head", "fusion_fit", "head_2", "fusion_fit_2"}
@@ -250,6 +251,42 @@ def test_the_fusion_fit_learns_from_the_frames_alone_not_their_imperfect_copy(fr
               for name, rows in fitted_rows.items()}
     assert scores["frames"] == pytest.approx(results["fusion_fit"]["val_rmse"], rel=1e-9)
     assert scores["frames and copy"] != pytest.approx(results["fusion_fit"]["val_rmse"], rel=1e-6)
+
+
+def test_head_steps_in_bf16_train_another_head_on_the_same_trunk_and_say_so(frames, tiny_config):
+    """bf16 rounds the forward pass of the head's steps only: the end-to-end phase before it is the same, the head
+    comes out otherwise, and it still learns (its validation error, computed in float32, falls)."""
+    train, val = splits(frames)
+    models, results = {}, {}
+    for precision in ("fp32", "bf16"):
+        models[precision] = model_for(frames, tiny_config)
+        config = TrainConfig(max_epochs=1, head_epochs=3, batch_size=8, head_cycles=1, head_precision=precision)
+        results[precision] = train_phases(models[precision], train, val, config)
+    for precision, result in results.items():
+        assert result["end_to_end"].step_precision == "fp32"
+        assert result["head"].step_precision == precision
+        assert result["head"].best_val_rmse < result["head"].initial_val_rmse
+        assert all(np.isfinite(r["val_rmse"]) for r in result["head"].history)
+    fp32, bf16 = (dict(models[p].named_parameters()) for p in ("fp32", "bf16"))
+    assert all(torch.equal(fp32[k], bf16[k]) for k in fp32 if k.startswith("cnn.trunk."))
+    assert not torch.equal(fp32["cnn.last_layer.linear.weight"], bf16["cnn.last_layer.linear.weight"])
+
+
+def test_bf16_steps_leave_validation_in_float32(frames, tiny_config, monkeypatch):
+    """Only the training steps' predictions come out in bf16; those that choose the best epoch are float32."""
+    seen = set()
+    predict = CachedSource.predict
+
+    def recording(self, model, indices):
+        prediction = predict(self, model, indices)
+        seen.add((model.training, prediction.dtype))
+        return prediction
+
+    monkeypatch.setattr(CachedSource, "predict", recording)
+    train, val = splits(frames)
+    train_phases(model_for(frames, tiny_config), train, val,
+                 TrainConfig(max_epochs=1, head_epochs=1, batch_size=8, head_cycles=1, head_precision="bf16"))
+    assert seen == {(True, torch.bfloat16), (False, torch.float32)}
 
 
 def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(frames, tiny_config):
@@ -420,6 +457,7 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
     config = TrainConfig(max_epochs=1, batch_size=8, head_batch_size=8, recalibration_epochs=3)
     model, result, wall_s = recalibrate(base, full_train, full_val, config)
     assert wall_s > 0 and result.epochs_run == 3
+    assert result.step_precision == config.recalibration_phase().head_precision
     for key, value in frozen.items():
         assert torch.equal(model.state_dict()[key], value), f"{key} changed during recalibration"
     assert not torch.equal(model.state_dict()["cnn.last_layer.linear.weight"],

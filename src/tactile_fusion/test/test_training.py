@@ -9,7 +9,7 @@ import torch
 from tactile_fusion.data import split_indices
 from tactile_fusion.model import force_scale_from_targets
 from tactile_fusion.sources import ImageSource
-from tactile_fusion.training import TrainConfig, build_model, epoch_batches, fit, rmse_loss
+from tactile_fusion.training import TrainConfig, build_model, epoch_batches, fit, native_bf16, rmse_loss
 
 
 def sources(frames):
@@ -120,15 +120,20 @@ def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_train
     """Head settings whose default changed count as what training did before they existed: no copy, the model's
     dropout. A checkpoint of the time when --head-noise-sigma replaced the frames cannot be resumed at all."""
     old_behaviour = TrainConfig(max_epochs=2, batch_size=8, head_dropout=None, head_noise_sigma=0.0,
-                                head_blur_fraction=0.0, head_misalign_fraction=0.0, head_cycles=1)
+                                head_blur_fraction=0.0, head_misalign_fraction=0.0, head_cycles=1,
+                                head_precision="fp32")
     checkpoint = tmp_path / "checkpoint.pt"
 
     def before_the_head_settings(saved):
         for key in ("head_dropout", "head_noise_sigma", "head_blur_fraction", "head_blur_sigma_px",
-                    "head_misalign_fraction", "head_misalign_shift_px", "head_misalign_rotation_deg", "head_cycles"):
+                    "head_misalign_fraction", "head_misalign_shift_px", "head_misalign_rotation_deg", "head_cycles",
+                    "head_precision"):
             del saved[key]
 
     checkpoint_as_written_then(frames, tiny_config, old_behaviour, checkpoint, before_the_head_settings)
+    with pytest.raises(ValueError, match="head_precision 'fp32' \\(now 'bf16'\\)"):  # its steps were float32
+        trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_precision="bf16"),
+                checkpoint_path=checkpoint, resume=True)
     with pytest.raises(ValueError, match="same settings"):  # today's defaults train another head
         trained(frames, tiny_config, dataclasses.replace(old_behaviour, head_dropout=0.0, head_noise_sigma=1.2,
                                                          head_blur_fraction=0.2, head_misalign_fraction=0.1),
@@ -250,3 +255,13 @@ def test_recalibration_phase_is_a_head_phase_of_its_own_length():
     assert TrainConfig(head_epochs=0, recalibration_epochs=5).recalibration_phase().max_epochs == 5
     with pytest.raises(ValueError, match="recalibration_epochs"):
         TrainConfig(recalibration_epochs=0)
+
+
+def test_head_precision_resolves_auto_by_the_cpu_and_rejects_unknown_ones():
+    assert TrainConfig().head_phase().head_precision == ("bf16" if native_bf16() else "fp32")
+    assert TrainConfig(head_precision="fp32").recalibration_phase().head_precision == "fp32"
+    assert TrainConfig(head_precision="bf16").head_phase().head_precision == "bf16"
+    with pytest.raises(ValueError, match="head_precision must be one of"):
+        TrainConfig(head_precision="fp16")
+    # native_bf16 asks torch.cpu's private queries; a torch that renamed them would silently train in float32
+    assert callable(torch.cpu._is_avx512_bf16_supported) and callable(torch.cpu._is_amx_tile_supported)
