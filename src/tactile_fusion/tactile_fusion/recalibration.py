@@ -65,7 +65,7 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
     phase = config.recalibration_phase()
     result = fit(model, cached_train, cached_val, phase, progress=progress, desc="recalibrate",
-                 bf16_steps=phase.steps_in_bf16())
+                 step_precision=phase.head_precision)
     fit_fusion(model, cached_train, cached_val)
     return model, result, time.perf_counter() - started
 

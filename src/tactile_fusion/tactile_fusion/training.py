@@ -144,11 +144,13 @@ class TrainConfig:
         head_precision resolved to the one its steps use ("bf16" or "fp32"), which its checkpoint records."""
         return replace(self, max_epochs=epochs, learning_rate=self.head_learning_rate,
                        batch_size=self.head_batch_size, patience=max(epochs, 1), head_epochs=0,
-                       head_precision="bf16" if self.steps_in_bf16() else "fp32")
+                       head_precision=self._resolved_precision())
 
-    def steps_in_bf16(self) -> bool:
-        """Whether the steps on cached features run in bfloat16 (see STEP_PRECISIONS)."""
-        return self.head_precision == "bf16" or (self.head_precision == "auto" and native_bf16())
+    def _resolved_precision(self) -> str:
+        """head_precision with "auto" decided for this CPU: "bf16" or "fp32"."""
+        if self.head_precision == "auto":
+            return "bf16" if native_bf16() else "fp32"
+        return self.head_precision
 
 
 # Which phase each training setting decides. A checkpoint is resumed only with the same values of the settings that
@@ -231,10 +233,12 @@ def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int
 def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: TrainConfig,
         checkpoint_path: str | Path | None = None, resume: bool = False, progress: bool = False,
         on_epoch_end: Callable[[int, dict], None] | None = None, desc: str = "train",
-        compared: dict[str, str] | None = None, data: dict | None = None, bf16_steps: bool = False) -> TrainResult:
+        compared: dict[str, str] | None = None, data: dict | None = None, step_precision: str = "fp32"
+        ) -> TrainResult:
     """Train the parameters of `model` that require gradients; keep the weights of the best validation epoch.
 
-    bf16_steps: the forward pass of each training step in bfloat16 (see STEP_PRECISIONS; validation stays float32).
+    step_precision: "bf16" runs the forward pass of each training step in bfloat16, "fp32" in float32 (see
+    STEP_PRECISIONS; validation stays float32). A phase config's resolved head_precision is one of them.
 
     checkpoint_path: written after every epoch (atomically); with `resume`, training continues from it and
     ends with the same weights as an uninterrupted run. It is refused if it was written with other values of the
@@ -243,6 +247,8 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     that records none is not checked). on_epoch_end(epoch, record) is called after each
     epoch's checkpoint (an exception raised there interrupts training cleanly).
     """
+    if step_precision not in ("bf16", "fp32"):
+        raise ValueError(f"fit: step_precision must be 'bf16' or 'fp32', got {step_precision!r}")
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise ValueError("fit: the model has no trainable parameters")
@@ -283,7 +289,7 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
         losses = []
         batches = epoch_batches(len(train), config.batch_size, config.seed, epoch, min_batch)
         for idx in tqdm(batches, desc=f"epoch {epoch}", unit="batch", leave=False, disable=not progress):
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16_steps):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=step_precision == "bf16"):
                 prediction = train.predict(model, idx)
             loss = rmse_loss(prediction.float(), train.target(idx), config.loss_eps)
             optimizer.zero_grad(set_to_none=True)
@@ -313,7 +319,7 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     return TrainResult(initial_val_rmse=state["initial_val"], best_epoch=state["best_epoch"],
                        best_val_rmse=state["best_val"], epochs_run=state["epoch"], wall_time_s=state["wall_time_s"],
                        stopped_early=state["since_best"] >= config.patience, history=state["history"],
-                       step_precision="bf16" if bf16_steps else "fp32")
+                       step_precision=step_precision)
 
 
 def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: TrainConfig,
@@ -367,7 +373,7 @@ def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: C
     try:
         phase = config.head_phase()
         return fit(model, cached_train, cached_val, phase, checkpoint_path, resume, progress, on_epoch_end,
-                   desc="train head", compared=HEAD_COMPARED, data=data, bf16_steps=phase.steps_in_bf16())
+                   desc="train head", compared=HEAD_COMPARED, data=data, step_precision=phase.head_precision)
     finally:
         model.cnn.trunk.requires_grad_(True)
         model.cnn.set_dropout(model_dropout)

@@ -411,7 +411,7 @@ def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames,
     redrawn.redraw_copy(model, train, None, seed=3)
     assert torch.equal(redrawn.features, clean.features)
     # Frame i's copy is drawn from (seed, i) alone, whatever frames share its forward batch.
-    assert n % 5 and n > 5 != sources.FRONT_BATCH_FRAMES
+    assert n % 5 and n > 5 and sources.FRONT_BATCH_FRAMES != 5
     monkeypatch.setattr(sources, "FRONT_BATCH_FRAMES", 5)
     torch.testing.assert_close(CachedSource(model, train, "trunk", augmentation=augmentation, seed=2).features,
                                both.features)

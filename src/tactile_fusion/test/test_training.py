@@ -257,11 +257,13 @@ def test_recalibration_phase_is_a_head_phase_of_its_own_length():
         TrainConfig(recalibration_epochs=0)
 
 
-def test_head_precision_resolves_auto_by_the_cpu_and_rejects_unknown_ones():
+def test_head_precision_resolves_auto_by_the_cpu_and_rejects_unknown_ones(frames, tiny_config):
     assert TrainConfig().head_phase().head_precision == ("bf16" if native_bf16() else "fp32")
     assert TrainConfig(head_precision="fp32").recalibration_phase().head_precision == "fp32"
     assert TrainConfig(head_precision="bf16").head_phase().head_precision == "bf16"
     with pytest.raises(ValueError, match="head_precision must be one of"):
         TrainConfig(head_precision="fp16")
+    with pytest.raises(ValueError, match="step_precision must be 'bf16' or 'fp32', got 'auto'"):  # unresolved
+        trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=8), step_precision="auto")
     # native_bf16 asks torch.cpu's private queries; a torch that renamed them would silently train in float32
     assert callable(torch.cpu._is_avx512_bf16_supported) and callable(torch.cpu._is_amx_tile_supported)
