@@ -52,7 +52,8 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
     """Set the fusion layer of `model` to the ridge solution whose validation RMSE is lowest.
 
     Returns {"ridge": chosen value, "val_rmse": {ridge: normalised validation RMSE}, "val_rmse_before": the
-    gradient-trained layer's}. If no ridge beats the layer as it was, the layer is left unchanged.
+    gradient-trained layer's, "val_rmse_after": the model's as the fit leaves it}. If no ridge beats the layer as it
+    was, the layer is left unchanged.
     """
     before = normalised_rmse(model, val_source)
     x, y, _ = camera_features(model, train_source)
@@ -78,7 +79,7 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
     if scores[best] < before:
         _assign(model, *solutions[best])
     return {"ridge": best if scores[best] < before else None, "val_rmse": {str(k): v for k, v in scores.items()},
-            "val_rmse_before": before}
+            "val_rmse_before": before, "val_rmse_after": min(scores[best], before)}
 
 
 def _reduce_rank(weights: torch.Tensor, x: torch.Tensor, y: torch.Tensor, rank: int

@@ -97,5 +97,6 @@ def recalibration_sweep(base: ForceFusionNet, train: FrameSet, val: FrameSet, te
         model, result, wall_s = recalibrate(base, subset, val, config, progress)
         runs.append({"fraction": fraction, "train_frames": len(subset), "wall_time_s": wall_s,
                      "epochs_run": result.epochs_run, "best_epoch": result.best_epoch,
+                     "step_precision": result.step_precision,
                      "metrics": force_metrics(predict_torch(model, test), test.bin_forces_n)})
     return runs

@@ -196,6 +196,8 @@ def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
     report = json.loads(result.stdout)
     assert report["train_config"]["recalibration_epochs"] == 2
     assert [r["epochs_run"] for r in report["recalibration"]] == [2, 2]
+    resolved = TrainConfig().recalibration_phase().head_precision  # "auto" as this CPU resolves it
+    assert [r["step_precision"] for r in report["recalibration"]] == [resolved, resolved]
     assert report["added_camera"] == "cam3" and report["base_cameras"] == 3
     assert [r["fraction"] for r in report["recalibration"]] == [0.5, 1.0]
     assert report["speedup_full_data"] > 0

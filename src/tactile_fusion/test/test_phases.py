@@ -216,8 +216,11 @@ def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_
     results = train_phases(two, train, val, config)
     assert set(results) == {"end_to_end", "head", "fusion_fit", "head_2", "fusion_fit_2"}
     assert results["head_2"].epochs_run == 3
+    assert results["head"].kept_epoch == results["head_2"].kept_epoch == 3  # the last epochs, then the fit judged
+    assert results["fusion_fit"]["cycle_kept"]
+    assert results["fusion_fit"]["val_rmse_after"] < results["end_to_end"].best_val_rmse
     # The second cycle starts where the first one's fit left the model: its initial validation error is the fit's.
-    assert results["head_2"].initial_val_rmse == pytest.approx(min(results["fusion_fit"]["val_rmse"].values()))
+    assert results["head_2"].initial_val_rmse == pytest.approx(results["fusion_fit"]["val_rmse_after"])
 
     interrupt_in_the_second_cycle, _ = interrupt_after(6)  # 1 end-to-end epoch, 3 head epochs, 2 of the 2nd cycle
     with pytest.raises(Interrupt):
@@ -236,6 +239,29 @@ def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_
                      resume=True)
     with pytest.raises(ValueError, match="TrainConfig.head_cycles must be >= 1"):
         TrainConfig(head_cycles=0)
+
+
+def test_a_head_cycle_that_its_fit_leaves_worse_is_undone(frames, tiny_config):
+    """A head learning rate this large saturates the sigmoid features: fitted, the cycle is worse than the end-to-end
+    result, so the model goes on from the end-to-end weights."""
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=40, patience=40, batch_size=4, learning_rate=1e-2, head_epochs=2,
+                         head_learning_rate=1e3, head_cycles=1)
+    model = model_for(frames, replace(tiny_config, feature_activation="sigmoid"))
+    val_seen, best_end_to_end = [], []
+
+    def snapshot_the_best_end_to_end_epoch(epoch, record):
+        val_seen.append(record["val_rmse"])
+        if len(val_seen) <= config.max_epochs and record["val_rmse"] == min(val_seen):
+            best_end_to_end[:] = [copy.deepcopy(model.state_dict())]
+
+    results = train_phases(model, train, val, config, on_epoch_end=snapshot_the_best_end_to_end_epoch)
+    assert results["fusion_fit"]["val_rmse_after"] > results["end_to_end"].best_val_rmse
+    assert not results["fusion_fit"]["cycle_kept"]
+    for key, value in best_end_to_end[0].items():
+        assert torch.equal(value, model.state_dict()[key]), key
+    assert normalised_rmse(model, ImageSource(val, model.force_scale_n)) == pytest.approx(
+        results["end_to_end"].best_val_rmse, rel=1e-5)
 
 
 def test_the_fusion_fit_learns_from_the_frames_alone_not_their_imperfect_copy(frames, tiny_config):

@@ -191,6 +191,24 @@ def test_early_stopping_keeps_the_best_epoch(frames, tiny_config):
     assert normalised_rmse(model, val) == pytest.approx(result.best_val_rmse, rel=1e-5)
 
 
+def test_keep_last_returns_the_last_epoch_even_after_a_better_one(frames, tiny_config):
+    """Phases followed by the least-squares fit keep their last epoch (the fit, not the epoch, is judged)."""
+    config = TrainConfig(max_epochs=6, batch_size=4, learning_rate=0.5, patience=6)
+    model, result = trained(frames, tiny_config, config, keep="last")
+    assert result.best_epoch < result.epochs_run == 6  # the jumpy validation error peaked before the end
+    assert result.kept_epoch == 6
+    _, val, _ = sources(frames)
+    from tactile_fusion.training import normalised_rmse
+
+    assert normalised_rmse(model, val) == pytest.approx(result.history[-1]["val_rmse"], rel=1e-5)
+    assert normalised_rmse(model, val) > result.best_val_rmse
+    best_model, best = trained(frames, tiny_config, config)
+    assert best.kept_epoch == best.best_epoch
+    assert normalised_rmse(best_model, val) == pytest.approx(best.best_val_rmse, rel=1e-5)
+    with pytest.raises(ValueError, match="keep must be 'best' or 'last', got 'first'"):
+        trained(frames, tiny_config, config, keep="first")
+
+
 def test_batch_of_one_zero_bins_and_zero_error_stay_finite(frames, tiny_config):
     """Batch size 1 (BatchNorm over one frame), and targets that are zero in every bin and sample."""
     zero = frames.subset(np.arange(len(frames)))
