@@ -9,7 +9,9 @@ frozen layers in every step, and it is where the speed-up over full training com
 
 from __future__ import annotations
 
+import copy
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -56,17 +58,28 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
                 progress: bool = False) -> tuple[ForceFusionNet, TrainResult, float]:
     """Add the cameras of `train` that `base` lacks and retrain the last CNN layer and the fusion layer.
 
-    The gradient phase runs with `config.recalibration_phase()` and, as in full training, ends with the
-    least-squares fit of the fusion layer. Returns the model, the training result and the wall time in seconds,
-    feature caching included.
+    The gradient phase runs with `config.recalibration_phase()` and keeps its last epoch; as in full training,
+    the least-squares fit of the fusion layer follows. Like a head cycle (training.train_phases), the phase is
+    judged after its fit: if the starting point with only its fusion fitted has the lower validation RMSE, that is
+    the model returned (the result's kept_epoch is then 0). Scoring the epochs before the fit kept the starting
+    point with 10-50 % of the training data (docs/learning.md). Returns the model, the training result and the wall
+    time in seconds, feature caching and both fits included.
     """
     started = time.perf_counter()
     model = add_camera(base, train.camera_ids)
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
+    start = copy.deepcopy(model.state_dict())
     phase = config.recalibration_phase()
     result = fit(model, cached_train, cached_val, phase, progress=progress, desc="recalibrate",
-                 step_precision=phase.head_precision)
-    fit_fusion(model, cached_train, cached_val)
+                 step_precision=phase.head_precision, keep="last")
+    trained_val = fit_fusion(model, cached_train, cached_val)["val_rmse_after"]
+    trained = copy.deepcopy(model.state_dict())
+    model.load_state_dict(start)
+    if fit_fusion(model, cached_train, cached_val)["val_rmse_after"] <= trained_val:
+        result = replace(result, kept_epoch=0)
+    else:
+        model.load_state_dict(trained)
+    model.eval()
     return model, result, time.perf_counter() - started
 
 
@@ -96,7 +109,7 @@ def recalibration_sweep(base: ForceFusionNet, train: FrameSet, val: FrameSet, te
         subset = fraction_subset(train, fraction, config.seed)
         model, result, wall_s = recalibrate(base, subset, val, config, progress)
         runs.append({"fraction": fraction, "train_frames": len(subset), "wall_time_s": wall_s,
-                     "epochs_run": result.epochs_run, "best_epoch": result.best_epoch,
+                     "epochs_run": result.epochs_run, "best_epoch": result.best_epoch, "kept_epoch": result.kept_epoch,
                      "step_precision": result.step_precision,
                      "metrics": force_metrics(predict_torch(model, test), test.bin_forces_n)})
     return runs

@@ -130,7 +130,7 @@ class TrainConfig:
 
     def recalibration_phase(self) -> TrainConfig:
         """The settings of modular recalibration: the head phase's batch size and learning rate for
-        `recalibration_epochs`, all of them run (the best epoch is kept).
+        `recalibration_epochs`, all of them run (the last is kept and judged after the fit, see recalibrate).
 
         Recalibration trains the same kind of layers on cached features as the head phase. Measured on the
         recalibration study's 3-camera base, all the training data of the former 24 x 24 default grid

@@ -483,11 +483,20 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
     config = TrainConfig(max_epochs=1, batch_size=8, head_batch_size=8, recalibration_epochs=3)
     model, result, wall_s = recalibrate(base, full_train, full_val, config)
     assert wall_s > 0 and result.epochs_run == 3
+    assert result.kept_epoch == 3  # the trained layers, fitted, beat the start with only its fusion fitted
     assert result.step_precision == config.recalibration_phase().head_precision
     for key, value in frozen.items():
         assert torch.equal(model.state_dict()[key], value), f"{key} changed during recalibration"
     assert not torch.equal(model.state_dict()["cnn.last_layer.linear.weight"],
                            grown.state_dict()["cnn.last_layer.linear.weight"])
+    # A learning rate this large wrecks the last layer: the start with only its fusion fitted is kept instead.
+    wrecked, result, _ = recalibrate(base, full_train, full_val, replace(config, head_learning_rate=1e4))
+    assert result.kept_epoch == 0
+    start = add_camera(base, ("left", "right"))
+    fitted = fit_fusion(start, CachedSource(start, full_train, "hidden"), CachedSource(start, full_val, "hidden"))
+    assert fitted["ridge"] is not None  # the fit changed the start
+    for key, value in start.state_dict().items():
+        assert torch.equal(wrecked.state_dict()[key], value), key
     with pytest.raises(ValueError, match="at least one more"):
         add_camera(base, ("left",))
 
