@@ -244,8 +244,8 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate,
                         help="learning rate of the head phase and of recalibration")
     parser.add_argument("--head-dropout", type=float, default=train.head_dropout,
-                        help="dropout rate of the fully connected layers in the head phase (default %(default)s; "
-                        "the end-to-end phase and recalibration use the model's, 0.1)")
+                        help="dropout rate of the fully connected layers in the head phase and recalibration (default "
+                        "%(default)s; the end-to-end phase uses the model's, 0.1)")
     parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
                         help="the head phase also learns from an imperfect copy of the training frames (the "
                         "least-squares fusion fit from the frames alone): Gaussian noise with a standard deviation "

@@ -21,7 +21,7 @@ from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ForceFusionNet
 from tactile_fusion.sources import CachedSource
-from tactile_fusion.training import TrainConfig, TrainResult, fit
+from tactile_fusion.training import TrainConfig, TrainResult, fit, head_dropout
 
 
 def add_camera(base: ForceFusionNet, camera_ids: tuple[str, ...]) -> ForceFusionNet:
@@ -58,7 +58,8 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
                 progress: bool = False) -> tuple[ForceFusionNet, TrainResult, float]:
     """Add the cameras of `train` that `base` lacks and retrain the last CNN layer and the fusion layer.
 
-    The gradient phase runs with `config.recalibration_phase()` and keeps its last epoch; as in full training,
+    The gradient phase runs with `config.recalibration_phase()` at the head phase's dropout (`head_dropout`) and
+    keeps its last epoch; as in full training,
     the least-squares fit of the fusion layer follows. Like a head cycle (training.train_phases), the phase is
     judged after its fit: if the starting point with only its fusion fitted has the lower validation RMSE, that is
     the model returned (the result's kept_epoch is then 0). Scoring the epochs before the fit kept the starting
@@ -70,8 +71,9 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
     start = copy.deepcopy(model.state_dict())
     phase = config.recalibration_phase()
-    result = fit(model, cached_train, cached_val, phase, progress=progress, desc="recalibrate",
-                 step_precision=phase.head_precision, keep="last")
+    with head_dropout(model, config):
+        result = fit(model, cached_train, cached_val, phase, progress=progress, desc="recalibrate",
+                     step_precision=phase.head_precision, keep="last")
     trained_val = fit_fusion(model, cached_train, cached_val)["val_rmse_after"]
     trained = copy.deepcopy(model.state_dict())
     model.load_state_dict(start)

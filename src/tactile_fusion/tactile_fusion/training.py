@@ -12,7 +12,8 @@ import copy
 import hashlib
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
@@ -129,8 +130,10 @@ class TrainConfig:
         return self._on_cached_features(self.head_epochs)
 
     def recalibration_phase(self) -> TrainConfig:
-        """The settings of modular recalibration: the head phase's batch size and learning rate for
+        """The settings of modular recalibration: the head phase's batch size, learning rate and dropout for
         `recalibration_epochs`, all of them run (the last is kept and judged after the fit, see recalibrate).
+        At the model's dropout of 0.1 the trained layers, fitted, lost to the fusion refit alone at every fraction of
+        the study's data; at the head's 0 they win with all the data (docs/learning.md).
 
         Recalibration trains the same kind of layers on cached features as the head phase. Measured on the
         recalibration study's 3-camera base, all the training data of the former 24 x 24 default grid
@@ -387,17 +390,26 @@ def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: C
                 checkpoint_path: Path | None, resume: bool, progress: bool, on_epoch_end,
                 data: dict | None) -> TrainResult:
     """The head alone on cached conv-trunk features, at the head phase's dropout, its last epoch kept (the cycle is
-    judged after the fit, see train_phases); the model's own dropout and its trainable trunk are restored
-    afterwards."""
+    judged after the fit, see train_phases); the model's trainable trunk is restored afterwards."""
     model.cnn.trunk.requires_grad_(False)
-    model_dropout = model.cnn.set_dropout(model.config.dropout if config.head_dropout is None else config.head_dropout)
     try:
-        phase = config.head_phase()
-        return fit(model, cached_train, cached_val, phase, checkpoint_path, resume, progress, on_epoch_end,
-                   desc="train head", compared=HEAD_COMPARED, data=data, step_precision=phase.head_precision,
-                   keep="last")
+        with head_dropout(model, config):
+            phase = config.head_phase()
+            return fit(model, cached_train, cached_val, phase, checkpoint_path, resume, progress, on_epoch_end,
+                       desc="train head", compared=HEAD_COMPARED, data=data, step_precision=phase.head_precision,
+                       keep="last")
     finally:
         model.cnn.trunk.requires_grad_(True)
+
+
+@contextmanager
+def head_dropout(model: ForceFusionNet, config: TrainConfig) -> Iterator[None]:
+    """The fully connected layers at config.head_dropout (None: the model's own rate) while training on cached
+    features (head phase, recalibration); the model's own rate restored afterwards, also on an exception."""
+    model_dropout = model.cnn.set_dropout(model.config.dropout if config.head_dropout is None else config.head_dropout)
+    try:
+        yield
+    finally:
         model.cnn.set_dropout(model_dropout)
 
 

@@ -489,8 +489,18 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
         assert torch.equal(model.state_dict()[key], value), f"{key} changed during recalibration"
     assert not torch.equal(model.state_dict()["cnn.last_layer.linear.weight"],
                            grown.state_dict()["cnn.last_layer.linear.weight"])
-    # A learning rate this large wrecks the last layer: the start with only its fusion fitted is kept instead.
-    wrecked, result, _ = recalibrate(base, full_train, full_val, replace(config, head_learning_rate=1e4))
+    # Recalibration trains at the head phase's dropout (None: the model's own), and leaves the model's rate as it was.
+    at_model_rate, _, _ = recalibrate(base, full_train, full_val, replace(config, head_dropout=None))
+    at_that_rate, _, _ = recalibrate(base, full_train, full_val, replace(config, head_dropout=0.1))
+    at_half, _, _ = recalibrate(base, full_train, full_val, replace(config, head_dropout=0.5))
+    weight = "cnn.last_layer.linear.weight"
+    assert torch.equal(at_model_rate.state_dict()[weight], at_that_rate.state_dict()[weight])
+    assert not torch.equal(at_model_rate.state_dict()[weight], at_half.state_dict()[weight])
+    assert not torch.equal(model.state_dict()[weight], at_half.state_dict()[weight])  # the default, 0
+    assert at_half.cnn.last_layer.dropout.p == at_half.cnn.first_layer.dropout.p == base.config.dropout == 0.1
+    # A learning rate this large, with dropout, wrecks the last layer: the start with only its fusion fitted is kept.
+    wrecked, result, _ = recalibrate(base, full_train, full_val,
+                                     replace(config, head_learning_rate=1e4, head_dropout=None))
     assert result.kept_epoch == 0
     start = add_camera(base, ("left", "right"))
     fitted = fit_fusion(start, CachedSource(start, full_train, "hidden"), CachedSource(start, full_val, "hidden"))
