@@ -59,12 +59,11 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     """Add the cameras of `train` that `base` lacks and retrain the last CNN layer and the fusion layer.
 
     The gradient phase runs with `config.recalibration_phase()` at the head phase's dropout (`head_dropout`) and
-    keeps its last epoch; as in full training,
-    the least-squares fit of the fusion layer follows. Like a head cycle (training.train_phases), the phase is
-    judged after its fit: if the starting point with only its fusion fitted has the lower validation RMSE, that is
-    the model returned (the result's kept_epoch is then 0). Scoring the epochs before the fit kept the starting
-    point with 10-50 % of the training data (docs/learning.md). Returns the model, the training result and the wall
-    time in seconds, feature caching and both fits included.
+    keeps its last epoch; as in full training, the least-squares fit of the fusion layer follows. Like a head cycle
+    (training.train_phases), the phase is judged after its fit: if the starting point with only its fusion fitted
+    has the lower validation RMSE, that is the model returned (the result's kept_epoch is then 0). Scoring the epochs
+    before the fit kept the starting point with 10-50 % of the training data (docs/learning.md). Returns the model,
+    the training result and the wall time in seconds, feature caching and both fits included.
     """
     started = time.perf_counter()
     model = add_camera(base, train.camera_ids)
