@@ -90,6 +90,17 @@ def _train_config(args) -> TrainConfig:
                        head_precision=args.head_precision)
 
 
+def _further_draws(args, sensor):
+    """--head-extra-draws as pipeline.further_draws resolves it, checked before anything trains."""
+    from tactile_fusion.pipeline import further_draws
+
+    try:
+        return further_draws(sensor, args.scene, args.dataset, args.frames, args.head_extra_draws,
+                             progress=not (args.quiet or getattr(args, "json", False)))
+    except ValueError as exc:
+        raise SettingsError(str(exc)) from exc
+
+
 def cmd_train(args) -> int:
     from tactile_fusion.pipeline import train_and_export, training_splits
 
@@ -97,6 +108,7 @@ def cmd_train(args) -> int:
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
     model_config, train_config = _settings(args)
+    head_extra = _further_draws(args, sensor)
     splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     if args.dataset:
@@ -104,7 +116,7 @@ def cmd_train(args) -> int:
     else:
         source = f"scene {Path(args.scene).resolve() if Path(args.scene).is_file() else args.scene}"
     metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
-                               progress=not args.quiet, threads=args.threads, data_source=source)
+                               progress=not args.quiet, threads=args.threads, data_source=source, head_extra=head_extra)
     print(metrics_table({f"{splits['test'].scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
     components = model_components(read_model_json(args.out))
@@ -171,7 +183,7 @@ def cmd_recalibrate(args) -> int:
     fractions = _fractions(args.fractions)
     report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, args.add_camera, fractions,
                                      model_config, train_config, Path(args.out),
-                                     progress=not (args.json or args.quiet))
+                                     progress=not (args.json or args.quiet), head_extra=_further_draws(args, sensor))
     if args.json:
         print(json.dumps(report))
     else:
@@ -234,6 +246,10 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-epochs", type=int, default=train.head_epochs,
                         help="then at most this many epochs of the head alone on cached conv features (default "
                         "%(default)s, sized like --epochs)")
+    parser.add_argument("--head-extra-draws", type=int,
+                        help="the head phase and the least-squares fits also learn from this many further draws of "
+                        "the scene (its presses drawn again from seed + 1, ...: other positions, depths and noise; "
+                        "default 1 for a scene, 0 for a dataset, which cannot be drawn again)")
     parser.add_argument("--head-cycles", type=int, default=train.head_cycles,
                         help="run the head phase and the least-squares fit this many times, each from the one before "
                         "with a new imperfect copy (default %(default)s, see docs/learning.md)")

@@ -4,6 +4,7 @@ the sensor description, and split 70/10/20 deterministically from the scene's se
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -132,6 +133,81 @@ def simulate_frames(sensor: SensorDescription, scene: Scene, indices: np.ndarray
     """
     keep = np.arange(len(scene)) if indices is None else np.asarray(indices)
     return simulate_splits(sensor, scene, {"frames": keep}, progress)["frames"]
+
+
+def simulate_chunks(sensor: SensorDescription, scene: Scene, chunk_frames: int, progress: bool = False
+                    ) -> Iterator[FrameSet]:
+    """Every frame of `scene`, streamed through the simulator and handed on in FrameSets of `chunk_frames` frames (the
+    last one shorter): a consumer that keeps only something of each chunk never holds the whole scene's images."""
+    sim = Simulator(sensor)
+    c = sensor.n_cameras
+    w, h = sensor.cameras[0].output_size
+    reference = sim.reference_images()
+    for frame in tqdm(sim.stream(scene), total=len(scene), desc=f"simulate {scene.name} (seed {scene.seed})",
+                      unit="frame", disable=not progress):
+        slot = frame.index % chunk_frames
+        if slot == 0:
+            n = min(chunk_frames, len(scene) - frame.index)
+            chunk = FrameSet(images=np.empty((n, c, h, w), dtype=np.uint8),
+                             bin_forces_n=np.empty((n, sensor.grid.rows, sensor.grid.cols, 3), dtype=np.float32),
+                             reference=reference, camera_ok=np.empty((n, c), dtype=bool),
+                             camera_ids=sensor.camera_ids, scene=scene.name, seed=scene.seed)
+        chunk.images[slot] = frame.images
+        chunk.bin_forces_n[slot] = frame.bin_forces_n
+        chunk.camera_ok[slot] = frame.camera_ok
+        if slot == len(chunk) - 1:
+            yield chunk
+
+
+#: Frames per chunk of a further draw of a scene: one chunk of images is held at a time (64 MB with four cameras).
+DRAW_CHUNK_FRAMES = 1024
+
+
+@dataclass(frozen=True)
+class SceneDraws:
+    """Further draws of a simulated scene: draw k (1, 2, ...) is `scene` with seed + k, the same timeline and effects
+    with other random press positions, depths and sensor noise; every frame of it (of its first frames, for a limited
+    scene). Iterating simulates the draws (again, each time) and yields their frames in chunks of `DRAW_CHUNK_FRAMES`,
+    seen by `camera_ids` (None: all the sensor's cameras).
+
+    What they are for: the head phase and the least-squares fit learn from them besides the training split
+    (train_phases). Their frames are new samples of the scene's own distribution, none of them a test frame. The head
+    costs far less per frame than the end-to-end phase, and it needed data: the shipped model fitted its own
+    training frames to 1.80 mN per bin but its test frames to 2.48 (docs/learning.md).
+    """
+
+    sensor: SensorDescription
+    scene: Scene | None
+    draws: int
+    camera_ids: tuple[str, ...] | None = None
+    progress: bool = False
+
+    def __post_init__(self):
+        if isinstance(self.draws, bool) or not isinstance(self.draws, int) or self.draws < 0:
+            raise ValueError(f"SceneDraws: draws must be an integer >= 0, got {self.draws!r}")
+        if self.draws and self.scene is None:
+            raise ValueError("SceneDraws: further draws need a scene to draw from")
+
+    def __len__(self) -> int:
+        return self.draws * len(self.scene) if self.draws else 0
+
+    def __iter__(self) -> Iterator[FrameSet]:
+        for k in range(1, self.draws + 1):
+            for chunk in simulate_chunks(self.sensor, replace(self.scene, seed=self.scene.seed + k), DRAW_CHUNK_FRAMES,
+                                         self.progress):
+                yield chunk if self.camera_ids is None else chunk.select_cameras(self.camera_ids)
+
+    def select_cameras(self, camera_ids: tuple[str, ...] | list[str]) -> SceneDraws:
+        """The same draws seen by `camera_ids` only, in that order."""
+        return replace(self, camera_ids=tuple(camera_ids))
+
+    def describe(self) -> dict:
+        """What training.json records of them: scene, the seed of each draw, frames in all."""
+        if not self.draws:
+            return {"draws": 0, "frames": 0}
+        return {"draws": self.draws, "scene": self.scene.name, "seeds": [self.scene.seed + k
+                                                                         for k in range(1, self.draws + 1)],
+                "frames": len(self)}
 
 
 def simulate_splits(sensor: SensorDescription, scene: Scene, splits: dict[str, np.ndarray],

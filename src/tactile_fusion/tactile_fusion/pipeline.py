@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import platform
 import time
+from collections.abc import Iterable
 from dataclasses import asdict
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from tactile_fusion.artifacts import (
 from tactile_fusion.data import (
     DatasetMismatchError,
     FrameSet,
+    SceneDraws,
     describe_splits,
     load_dataset_frames,
     simulate_frames,
@@ -43,6 +45,8 @@ from tactile_fusion.training import TrainConfig, TrainResult, build_model, train
 from tactile_sim import DatasetError, SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
+#: Further draws of a training scene that the head phase learns from by default (SceneDraws; none for a dataset).
+DEFAULT_EXTRA_DRAWS = 1
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
 CHECKPOINTS = "checkpoint_*.pt"
@@ -75,14 +79,35 @@ def training_splits(sensor: SensorDescription, scene_name: str | None, dataset: 
     return simulate_splits(sensor, scene, split_indices(n_frames, scene.seed), progress)
 
 
+def further_draws(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None, frames: int | None,
+                  draws: int | None, progress: bool) -> SceneDraws:
+    """The further draws of the training scene that the head phase learns from besides the training split
+    (`--head-extra-draws`), of its first `frames` frames when given. None: one draw for a scene, none for a dataset,
+    which cannot be drawn again (asking for draws of a dataset is an error)."""
+    if draws is not None and draws < 0:
+        raise ValueError(f"--head-extra-draws must be >= 0, got {draws}")
+    if dataset is not None:
+        if draws:
+            raise ValueError(f"--head-extra-draws {draws}: a dataset cannot be drawn again; further draws need a "
+                             "scene (--scene), or leave the option out")
+        return SceneDraws(sensor, None, 0)
+    scene = load_scene(scene_name or DEFAULT_SCENE, sensor)
+    if frames is not None:
+        scene = scene.limited(min(frames, len(scene)))
+    return SceneDraws(sensor, scene, DEFAULT_EXTRA_DRAWS if draws is None else draws, progress=progress)
+
+
 def train_model(train: FrameSet, val: FrameSet, model_config: ModelConfig, train_config: TrainConfig,
-                checkpoint_dir: Path | None, resume: bool, progress: bool) -> tuple[ForceFusionNet, dict]:
-    """Train on `train` with early stopping on `val`; returns the model and the training results of each phase."""
+                checkpoint_dir: Path | None, resume: bool, progress: bool, head_extra: Iterable[FrameSet] = ()
+                ) -> tuple[ForceFusionNet, dict]:
+    """Train on `train` with early stopping on `val`, the head also on `head_extra` (`further_draws`); returns the
+    model and the training results of each phase."""
     scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
     rows, cols = train.bin_forces_n.shape[1:3]
     model = build_model(model_config, train.camera_ids, rows, cols, scale, train_config.seed,
                         estimated_components(train.bin_forces_n))
-    return model, train_phases(model, train, val, train_config, checkpoint_dir, resume, progress)
+    return model, train_phases(model, train, val, train_config, checkpoint_dir, resume, progress,
+                               head_extra=head_extra)
 
 
 def export_all(model: ForceFusionNet, out_dir: Path) -> dict:
@@ -112,17 +137,18 @@ def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> 
 
 def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], model_config: ModelConfig,
                      train_config: TrainConfig, out_dir: str | Path, resume: bool = False, progress: bool = True,
-                     threads: int | None = None, data_source: str = "") -> dict:
-    """The whole `tactile-fusion train` on the `training_splits` of some data: train, save, export, evaluate on
-    the test split, write the JSON files.
+                     threads: int | None = None, data_source: str = "", head_extra: SceneDraws | None = None) -> dict:
+    """The whole `tactile-fusion train` on the `training_splits` of some data (and the `further_draws` of its scene
+    for the head phase): train, save, export, evaluate on the test split, write the JSON files.
 
     Returns the metrics dict that is written to metrics.json.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    head_extra = head_extra if head_extra is not None else SceneDraws(sensor, None, 0)
     model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
-                                 progress)
+                                 progress, head_extra)
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
     export_all(model, out_dir)
@@ -130,7 +156,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     write_json(out_dir / TRAINING_JSON, {
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
-        "data": {"source": data_source, **describe_splits(splits)},
+        "data": {"source": data_source, **describe_splits(splits), "head_extra": head_extra.describe()},
         "sensor": sensor.name,
         "phases": {p: r.to_dict() if isinstance(r, TrainResult) else r for p, r in results.items()},
         "wall_time_s": {"training": training_wall_s,

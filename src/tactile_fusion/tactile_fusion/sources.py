@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,24 +61,35 @@ class CachedSource:
     """Frames as the cached output of the model's front part up to `cut` ("trunk" or "hidden").
 
     The front part must stay frozen while this source is used (the caller sets requires_grad False on it).
-    augmentation: if given and active, the source holds 2 N samples: the N frames, then an imperfect copy of each
-    (`Augmentation.apply_each`: frame i drawn from (`seed`, i)) with the same targets (sample i + N has frame i's).
+    extra: more frames to learn from, in chunks (data.SceneDraws: further draws of the scene), of which only the
+    features and targets are kept; they follow the N frames as M samples more, without an imperfect copy.
+    augmentation: if given and active, an imperfect copy of each of the N frames follows as well (`Augmentation.
+    apply_each`: frame i drawn from (`seed`, i)), with the same targets: sample N + M + i has frame i's.
     """
 
     def __init__(self, model: ForceFusionNet, frames: FrameSet, cut: str, augmentation: Augmentation | None = None,
-                 seed: int = 0):
+                 seed: int = 0, extra: Iterable[FrameSet] = ()):
         if cut not in CUTS:
             raise ValueError(f"CachedSource: cut must be one of {CUTS}, got {cut!r}")
         self.cut = cut
         self.force_scale_n = model.force_scale_n
-        self.features = self._front(model, frames, cut)                              # (N, C, features at the cut)
-        self.targets = torch.from_numpy(np.asarray(frames.bin_forces_n))            # (N, rows, cols, 3), once
+        features, targets = [self._front(model, frames, cut)], [np.asarray(frames.bin_forces_n)]
+        for chunk in extra:
+            if chunk.camera_ids != frames.camera_ids:
+                raise ValueError(f"CachedSource: extra frames of cameras {list(chunk.camera_ids)}, the frames' are "
+                                 f"{list(frames.camera_ids)}")
+            features.append(self._front(model, chunk, cut))
+            targets.append(np.asarray(chunk.bin_forces_n))
+        self.extra_frames = sum(len(t) for t in targets[1:])
+        # (N + M, C, features at the cut) and (N + M, rows, cols, 3); without extra frames the frames' own, not copies
+        self.features = torch.cat(features) if self.extra_frames else features[0]
+        self.targets = torch.from_numpy(np.concatenate(targets) if self.extra_frames else targets[0])
         self.redraw_copy(model, frames, augmentation, seed)
 
     def redraw_copy(self, model: ForceFusionNet, frames: FrameSet, augmentation: Augmentation | None,
                     seed: int) -> None:
         """Replace the imperfect copy (if any) by one drawn from `seed`, as the constructor would with this seed; the
-        frames' own features, which do not change, are kept rather than computed again."""
+        features of the frames and the extra frames, which do not change, are kept rather than computed again."""
         self.features = self._frame_features()
         if augmentation is not None and augmentation.active:
             augmented = self._front(model, frames, self.cut,
@@ -85,13 +97,14 @@ class CachedSource:
             self.features = torch.cat([self.features, augmented])
 
     def frames_only(self) -> CachedSource:
-        """This source without the imperfect copy: the frames' own cached features (shared, not copied)."""
+        """This source without the imperfect copy: the cached features of the frames and the extra frames (shared,
+        not copied)."""
         view = copy.copy(self)
         view.features = self._frame_features()
         return view
 
     def _frame_features(self) -> torch.Tensor:
-        """The cached features of the frames themselves, without those of the copy (a view)."""
+        """The cached features of the frames and the extra frames, without those of the copy (a view)."""
         return self.features[:len(self.targets)]
 
     @staticmethod

@@ -18,7 +18,7 @@ import numpy as np
 
 from tactile_description import SensorDescription
 from tactile_fusion.artifacts import write_json
-from tactile_fusion.data import SPLITS, describe_splits
+from tactile_fusion.data import SPLITS, SceneDraws, describe_splits
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.pipeline import train_model, training_splits
@@ -32,7 +32,11 @@ REPORT_PNG = "recalibration.png"
 
 def run_recalibration_study(sensor: SensorDescription, scene: str | None, dataset: str | None, frames: int | None,
                             added_camera: str | None, fractions: list[float], model_config: ModelConfig,
-                            train_config: TrainConfig, out_dir: Path, progress: bool = False) -> dict:
+                            train_config: TrainConfig, out_dir: Path, progress: bool = False,
+                            head_extra: SceneDraws | None = None) -> dict:
+    """Train a model without `added_camera` and one with all cameras, both as `tactile-fusion train` does (the head
+    phases also on `head_extra`, further draws of the scene), then recalibrate the first at each data fraction; write
+    recalibration.json and recalibration.png into `out_dir` and return the report."""
     added_camera = added_camera or sensor.camera_ids[-1]
     if added_camera not in sensor.camera_ids or sensor.n_cameras < 2:
         raise ValueError(f"--add-camera {added_camera!r}: expected one of {list(sensor.camera_ids)} on a sensor with "
@@ -42,6 +46,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     fractions = sorted(fractions)
     train_config.recalibration_phase()  # settings that cannot recalibrate fail now, not after two trainings
     splits = training_splits(sensor, scene, dataset, frames, progress)
+    head_extra = head_extra if head_extra is not None else SceneDraws(sensor, None, 0)
     train, val, test = (splits[k] for k in SPLITS)
     base_ids = tuple(c for c in sensor.camera_ids if c != added_camera)
 
@@ -49,7 +54,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     for name, camera_ids in (("base", base_ids), ("full", sensor.camera_ids)):
         started = time.perf_counter()
         models[name], _ = train_model(train.select_cameras(camera_ids), val.select_cameras(camera_ids), model_config,
-                                      train_config, None, False, progress)
+                                      train_config, None, False, progress, head_extra.select_cameras(camera_ids))
         timings[name] = time.perf_counter() - started
     full_metrics = force_metrics(predict_torch(models["full"], test), test.bin_forces_n)
     base_metrics = force_metrics(predict_torch(models["base"], test.select_cameras(base_ids)), test.bin_forces_n)
@@ -61,7 +66,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     report = {
         "added_camera": added_camera,
         "base_cameras": len(base_ids),
-        "data": describe_splits(splits),
+        "data": {**describe_splits(splits), "head_extra": head_extra.describe()},
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
         "base_training": {"wall_time_s": timings["base"], "metrics": base_metrics},

@@ -41,6 +41,9 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     assert json.loads((out / MODEL_JSON).read_text())["components"] == ["fx", "fy", "fz"]
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
+    # The head also learnt from a further draw of those 60 frames (the default for a scene).
+    assert training["data"]["head_extra"] == {"draws": 1, "scene": "paper_grid",
+                                              "seeds": [training["data"]["seed"] + 1], "frames": 60}
     cycles = [""] + [f"_{c}" for c in range(2, TrainConfig().head_cycles + 1)]  # the default head cycles
     assert set(training["phases"]) == {"end_to_end", *(f"{p}{c}" for c in cycles for p in ("head", "fusion_fit"))}
     metrics = json.loads((out / METRICS_JSON).read_text())
@@ -183,7 +186,9 @@ def test_a_model_trained_on_a_dataset_by_relative_path_is_measured_from_anywhere
     write_dataset(Simulator(sensor), load_scene("paper_grid", sensor), tmp_path / "data", progress=False, frames=40)
     run("train", "--dataset", "data", "--epochs", "1", "--head-epochs", "1", "--out", "model", *TINY, cwd=tmp_path)
     model = tmp_path / "model"
-    assert json.loads((model / TRAINING_JSON).read_text())["data"]["source"] == f"dataset {tmp_path / 'data'}"
+    data = json.loads((model / TRAINING_JSON).read_text())["data"]
+    assert data["source"] == f"dataset {tmp_path / 'data'}"
+    assert data["head_extra"] == {"draws": 0, "frames": 0}  # a dataset cannot be drawn again
     result = run("export", "--model", str(model), "--measure", "--quiet")
     assert f"figures of the test split of dataset {tmp_path / 'data'} written to" in result.stdout
     measured = json.loads((model / METRICS_JSON).read_text())["backends"]
@@ -222,6 +227,9 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
     ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
     ("train", ["--head-misalign-rotation-deg", "50"], "TrainConfig.head_misalign_rotation_deg must be in [0, 45]"),
+    ("train", ["--head-extra-draws", "-1"], "--head-extra-draws must be >= 0, got -1"),
+    ("train", ["--dataset", "data", "--head-extra-draws", "1"],
+     "--head-extra-draws 1: a dataset cannot be drawn again"),
     ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),

@@ -1,13 +1,16 @@
 """Frames from the simulator and from written datasets, the deterministic split, and sensor mismatch errors."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from tactile_description import load_sensor
+from tactile_fusion import data
 from tactile_fusion.data import (
     DatasetMismatchError,
+    SceneDraws,
     check_frames_match_sensor,
     load_dataset_frames,
     simulate_frames,
@@ -15,7 +18,7 @@ from tactile_fusion.data import (
     split_frames,
     split_indices,
 )
-from tactile_fusion.pipeline import training_splits
+from tactile_fusion.pipeline import further_draws, training_splits
 from tactile_sim import Simulator, load_scene, write_dataset
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
@@ -66,6 +69,46 @@ def test_splits_are_simulated_in_one_stream_and_equal_the_split_of_the_whole(sen
         np.testing.assert_array_equal(trained_on[name].images, part.images)
         np.testing.assert_array_equal(trained_on[name].bin_forces_n, part.bin_forces_n)
         np.testing.assert_array_equal(trained_on[name].camera_ok, part.camera_ok)
+
+
+def test_further_draws_are_the_scene_with_the_next_seeds_in_chunks(sensor, monkeypatch):
+    scene = load_scene("paper_grid", sensor).limited(130)  # 120 frames at rest, then 10 presses
+    monkeypatch.setattr(data, "DRAW_CHUNK_FRAMES", 50)
+    draws = SceneDraws(sensor, scene, 2)
+    chunks = list(draws)
+    assert [len(c) for c in chunks] == [50, 50, 30] * 2 and len(draws) == 260
+    assert [c.seed for c in chunks] == [scene.seed + 1] * 3 + [scene.seed + 2] * 3
+    for k, first in ((1, 0), (2, 3)):
+        drawn = simulate_frames(sensor, replace(scene, seed=scene.seed + k))
+        np.testing.assert_array_equal(np.concatenate([c.images for c in chunks[first:first + 3]]), drawn.images)
+        np.testing.assert_array_equal(np.concatenate([c.bin_forces_n for c in chunks[first:first + 3]]),
+                                      drawn.bin_forces_n)
+        np.testing.assert_array_equal(np.concatenate([c.camera_ok for c in chunks[first:first + 3]]),
+                                      drawn.camera_ok)
+    own = simulate_frames(sensor, scene)
+    # Other presses than the scene's own (other positions and depths), on the same reference images.
+    assert not np.array_equal(chunks[2].bin_forces_n, own.bin_forces_n[100:])
+    np.testing.assert_array_equal(chunks[0].reference, own.reference)
+    assert draws.describe() == {"draws": 2, "scene": "paper_grid", "seeds": [scene.seed + 1, scene.seed + 2],
+                                "frames": 260}
+    two = draws.select_cameras(("cam2", "cam0"))
+    picked = next(iter(two))
+    assert picked.camera_ids == ("cam2", "cam0")
+    np.testing.assert_array_equal(picked.images, chunks[0].images[:, [2, 0]])
+    assert list(SceneDraws(sensor, None, 0)) == [] and SceneDraws(sensor, None, 0).describe() == {"draws": 0,
+                                                                                                   "frames": 0}
+    with pytest.raises(ValueError, match="draws must be an integer >= 0"):
+        SceneDraws(sensor, scene, -1)
+    with pytest.raises(ValueError, match="further draws need a scene"):
+        SceneDraws(sensor, None, 1)
+
+
+def test_further_draws_of_the_training_data_as_the_command_line_resolves_them(sensor):
+    assert len(further_draws(sensor, "paper_grid", None, 130, None, False)) == 130  # one draw by default
+    assert further_draws(sensor, None, None, None, 2, False).describe()["frames"] == 2 * 46200
+    assert len(further_draws(sensor, None, "some/dataset", None, None, False)) == 0  # a dataset: none by default
+    with pytest.raises(ValueError, match="a dataset cannot be drawn again"):
+        further_draws(sensor, None, "some/dataset", None, 1, False)
 
 
 def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sensor, tmp_path):

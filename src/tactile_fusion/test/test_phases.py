@@ -202,6 +202,65 @@ def test_a_checkpoint_of_other_frames_is_refused(frames, tiny_config, tmp_path):
     assert results["end_to_end"].epochs_run == 2  # the same frames resume
 
 
+@pytest.fixture
+def more(make_frames):
+    """16 frames of other presses than `frames`, on the same cameras and reference images (the same generator,
+    drawn further)."""
+    return make_frames(64).subset(np.arange(48, 64))
+
+
+def test_extra_frames_join_the_head_source_without_a_copy(frames, more, tiny_config):
+    train, _ = splits(frames)
+    model = model_for(frames, tiny_config).eval()
+    augmentation = Augmentation(noise_sigma=4.0)
+    source = CachedSource(model, train, "trunk", augmentation=augmentation, seed=2,
+                          extra=[more.subset(np.arange(10)), more.subset(np.arange(10, 16))])  # in two chunks
+    plain = CachedSource(model, train, "trunk", augmentation=augmentation, seed=2)
+    n, m = len(train), len(more)
+    assert source.extra_frames == m and len(source) == 2 * n + m
+    # The frames, the extra frames, then the copy of the frames alone, drawn as without extra frames.
+    assert torch.equal(source.features[:n], plain.features[:n])
+    torch.testing.assert_close(source.features[n:n + m], CachedSource(model, more, "trunk").features)
+    assert torch.equal(source.features[n + m:], plain.features[n:])
+    assert torch.equal(source.target(np.arange(n, n + m)), CachedSource(model, more, "trunk").target(np.arange(m)))
+    assert torch.equal(source.target(np.arange(n + m, 2 * n + m)), source.target(np.arange(n)))
+    # The least-squares fit gets the frames and the extra frames; a new copy keeps the extra frames' features.
+    assert torch.equal(source.frames_only().features, source.features[:n + m])
+    extra_features = source.features[n:n + m].clone()
+    source.redraw_copy(model, train, augmentation, seed=3)
+    assert len(source) == 2 * n + m and torch.equal(source.features[n:n + m], extra_features)
+    with pytest.raises(ValueError, match=r"extra frames of cameras \['right', 'left'\]"):
+        CachedSource(model, train, "trunk", extra=[more.select_cameras(("right", "left"))])
+
+
+def test_extra_frames_teach_the_head_alone_and_its_checkpoints_resume_only_on_them(frames, more, tiny_config,
+                                                                                    tmp_path):
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, seed=1, head_cycles=1)
+    without, straight = model_for(frames, tiny_config), model_for(frames, tiny_config)
+    train_phases(without, train, val, config)
+    train_phases(straight, train, val, config, head_extra=[more])
+    trunk = [k for k in straight.state_dict() if k.startswith("cnn.trunk.")]
+    assert trunk and all(torch.equal(straight.state_dict()[k], without.state_dict()[k]) for k in trunk)
+    assert not torch.equal(straight.fusion.expand.weight, without.fusion.expand.weight)
+
+    interrupt_in_head, _ = interrupt_after(2)  # 1 end-to-end epoch, then the 1st head epoch
+    with pytest.raises(Interrupt):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, on_epoch_end=interrupt_in_head,
+                     head_extra=[more])
+    with pytest.raises(ValueError, match=r"checkpoint_head\.pt was trained on other data: head_extra_frames 16 "
+                                         r"\(now None\), head_extra_targets_sha256 "):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, resume=True)
+    with pytest.raises(ValueError, match=r"checkpoint_head\.pt was trained on other data: head_extra_frames 16 "
+                                         r"\(now 15\)"):
+        train_phases(model_for(frames, tiny_config), train, val, config, tmp_path, resume=True,
+                     head_extra=[more.subset(np.arange(15))])
+    resumed = model_for(frames, tiny_config)
+    train_phases(resumed, train, val, config, tmp_path, resume=True, head_extra=[more])
+    for key, value in straight.state_dict().items():
+        assert torch.equal(value, resumed.state_dict()[key]), key
+
+
 def test_every_training_setting_belongs_to_one_phase_or_none():
     """Resuming compares a phase's own settings: a setting missing from every group would never be compared."""
     groups = END_TO_END_SETTINGS + HEAD_SETTINGS + SHARED_SETTINGS + NOT_PHASE_SETTINGS
