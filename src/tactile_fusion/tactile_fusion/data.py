@@ -140,23 +140,31 @@ def simulate_chunks(sensor: SensorDescription, scene: Scene, chunk_frames: int, 
     """Every frame of `scene`, streamed through the simulator and handed on in FrameSets of `chunk_frames` frames (the
     last one shorter): a consumer that keeps only something of each chunk never holds the whole scene's images."""
     sim = Simulator(sensor)
-    c = sensor.n_cameras
-    w, h = sensor.cameras[0].output_size
     reference = sim.reference_images()
     for frame in tqdm(sim.stream(scene), total=len(scene), desc=f"simulate {scene.name} (seed {scene.seed})",
                       unit="frame", disable=not progress):
         slot = frame.index % chunk_frames
         if slot == 0:
-            n = min(chunk_frames, len(scene) - frame.index)
-            chunk = FrameSet(images=np.empty((n, c, h, w), dtype=np.uint8),
-                             bin_forces_n=np.empty((n, sensor.grid.rows, sensor.grid.cols, 3), dtype=np.float32),
-                             reference=reference, camera_ok=np.empty((n, c), dtype=bool),
-                             camera_ids=sensor.camera_ids, scene=scene.name, seed=scene.seed)
-        chunk.images[slot] = frame.images
-        chunk.bin_forces_n[slot] = frame.bin_forces_n
-        chunk.camera_ok[slot] = frame.camera_ok
+            chunk = _empty_frames(sensor, scene, reference, min(chunk_frames, len(scene) - frame.index))
+        _keep(chunk, slot, frame)
         if slot == len(chunk) - 1:
             yield chunk
+
+
+def _empty_frames(sensor: SensorDescription, scene: Scene, reference: np.ndarray, n: int) -> FrameSet:
+    """Room for `n` simulated frames of `scene`, filled by `_keep`."""
+    w, h = sensor.cameras[0].output_size
+    return FrameSet(images=np.empty((n, sensor.n_cameras, h, w), dtype=np.uint8),
+                    bin_forces_n=np.empty((n, sensor.grid.rows, sensor.grid.cols, 3), dtype=np.float32),
+                    reference=reference, camera_ok=np.empty((n, sensor.n_cameras), dtype=bool),
+                    camera_ids=sensor.camera_ids, scene=scene.name, seed=scene.seed)
+
+
+def _keep(frames: FrameSet, slot: int, frame) -> None:
+    """A simulated frame into `frames` at `slot`."""
+    frames.images[slot] = frame.images
+    frames.bin_forces_n[slot] = frame.bin_forces_n
+    frames.camera_ok[slot] = frame.camera_ok
 
 
 #: Frames per chunk of a further draw of a scene: one chunk of images is held at a time (64 MB with four cameras).
@@ -216,14 +224,7 @@ def simulate_splits(sensor: SensorDescription, scene: Scene, splits: dict[str, n
     own: {name: frames}. The streamed frames go straight into their split, so training holds a scene once, not as a
     whole and again as copies of its parts."""
     sim = Simulator(sensor)
-    c = sensor.n_cameras
-    w, h = sensor.cameras[0].output_size
-    rows, cols = sensor.grid.rows, sensor.grid.cols
-    kept = {name: FrameSet(images=np.empty((len(idx), c, h, w), dtype=np.uint8),
-                           bin_forces_n=np.empty((len(idx), rows, cols, 3), dtype=np.float32),
-                           reference=sim.reference_images(), camera_ok=np.empty((len(idx), c), dtype=bool),
-                           camera_ids=sensor.camera_ids, scene=scene.name, seed=scene.seed)
-            for name, idx in splits.items()}
+    kept = {name: _empty_frames(sensor, scene, sim.reference_images(), len(idx)) for name, idx in splits.items()}
     slots = {}  # frame index -> (split name, position in that split)
     for name, idx in splits.items():
         slots.update((int(frame), (name, slot)) for slot, frame in enumerate(np.asarray(idx)))
@@ -232,7 +233,5 @@ def simulate_splits(sensor: SensorDescription, scene: Scene, splits: dict[str, n
     for frame in tqdm(stream, total=last, desc=f"simulate {scene.name}", unit="frame", disable=not progress):
         if frame.index in slots:
             name, slot = slots[frame.index]
-            kept[name].images[slot] = frame.images
-            kept[name].bin_forces_n[slot] = frame.bin_forces_n
-            kept[name].camera_ok[slot] = frame.camera_ok
+            _keep(kept[name], slot, frame)
     return kept
