@@ -11,6 +11,7 @@ of uint8 differences wrong.
 from __future__ import annotations
 
 import copy
+import io
 import warnings
 from pathlib import Path
 
@@ -57,17 +58,25 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
     example = (torch.zeros(1, c, size, size, dtype=torch.uint8), torch.zeros(c, size, size, dtype=torch.uint8))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(onnx_bytes(graph, example, OUTPUT_NAME))
+    proto = onnx.load(str(path))
+    onnx.checker.check_model(proto, full_check=True)
+    return path
+
+
+def onnx_bytes(graph: nn.Module, example: tuple[torch.Tensor, torch.Tensor], output_name: str) -> bytes:
+    """`graph` (inputs INPUT_NAMES, evaluation mode) as a serialised ONNX graph whose inputs and output have a free
+    batch axis, traced with `example`."""
+    buffer = io.BytesIO()
     with warnings.catch_warnings():
         # torch >= 2.9 marks the TorchScript exporter deprecated in favour of dynamo=True, which needs
         # onnxscript (not a dependency of this project); the TorchScript path is still supported and tested.
         warnings.simplefilter("ignore", DeprecationWarning)
         warnings.simplefilter("ignore", FutureWarning)
-        torch.onnx.export(graph, example, str(path), input_names=list(INPUT_NAMES), output_names=[OUTPUT_NAME],
-                          dynamic_axes={"images": {0: "batch"}, OUTPUT_NAME: {0: "batch"}}, opset_version=OPSET,
+        torch.onnx.export(graph, example, buffer, input_names=list(INPUT_NAMES), output_names=[output_name],
+                          dynamic_axes={"images": {0: "batch"}, output_name: {0: "batch"}}, opset_version=OPSET,
                           do_constant_folding=True, dynamo=False)
-    proto = onnx.load(str(path))
-    onnx.checker.check_model(proto, full_check=True)
-    return path
+    return buffer.getvalue()
 
 
 def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:

@@ -156,19 +156,29 @@ class OnnxRuntimePredictor(ForcePredictor):
 
     def __init__(self, onnx_path: str | Path, description: dict, precision: str = "fp32",
                  threads: int | None = DEFAULT_THREADS):
-        import onnxruntime as ort
-
         size = description["model_config"]["image_size"]
         super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision,
                          model_components(description))
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads or 0
-        options.inter_op_num_threads = 1
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self.session = ort.InferenceSession(str(onnx_path), options, providers=["CPUExecutionProvider"])
+        self.session = onnx_session(onnx_path, threads)
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]
+
+
+def onnx_session(graph: str | Path | bytes, threads: int | None, spinning: bool = True):
+    """An ONNX Runtime CPU session of a graph file or serialised graph, fully optimised, with `threads` intra-op
+    threads (None: all cores). spinning False: its threads sleep between runs instead of waiting busily for the
+    next, which would take the cores from the Python and torch work that a caller does in between."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads or 0
+    options.inter_op_num_threads = 1
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    if not spinning:
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    source = graph if isinstance(graph, bytes) else str(graph)
+    return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
 
 
 def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxruntime", precision: str = "fp32",
