@@ -136,7 +136,7 @@ class CachedSource:
     def _front(model: ForceFusionNet, frames: FrameSet, cut: str, change=None) -> torch.Tensor:
         """(N, C, features at the cut) of `frames` through ONNX Runtime, each chunk of images first passed through
         change(images, first frame index) if given."""
-        reference = np.asarray(frames.reference)
+        reference = np.ascontiguousarray(frames.reference)
         front = FrontPart(model, cut).eval()
         example = (torch.from_numpy(np.asarray(frames.images[:1])), torch.from_numpy(reference))
         session = onnx_session(onnx_bytes(front, example, "features"), torch.get_num_threads(), spinning=False)
