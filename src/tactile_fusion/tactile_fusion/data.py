@@ -196,6 +196,11 @@ class SceneDraws:
         if self.draws and self.scene is None:
             raise ValueError("SceneDraws: further draws need a scene to draw from")
 
+    @classmethod
+    def none(cls, sensor: SensorDescription) -> SceneDraws:
+        """No further draws: the head phase learns from the training split alone (a dataset, or draws turned off)."""
+        return cls(sensor, None, 0)
+
     def __len__(self) -> int:
         return self.draws * len(self.scene) if self.draws else 0
 

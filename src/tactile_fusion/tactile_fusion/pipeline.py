@@ -90,7 +90,7 @@ def further_draws(sensor: SensorDescription, scene_name: str | None, dataset: st
         if draws:
             raise ValueError(f"--head-extra-draws {draws}: a dataset cannot be drawn again; further draws need a "
                              "scene (--scene), or leave the option out")
-        return SceneDraws(sensor, None, 0)
+        return SceneDraws.none(sensor)
     scene = load_scene(scene_name or DEFAULT_SCENE, sensor)
     if frames is not None:
         scene = scene.limited(min(frames, len(scene)))
@@ -146,7 +146,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    head_extra = head_extra if head_extra is not None else SceneDraws(sensor, None, 0)
+    head_extra = head_extra if head_extra is not None else SceneDraws.none(sensor)
     model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
                                  progress, head_extra)
     training_wall_s = time.perf_counter() - started

@@ -46,7 +46,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     fractions = sorted(fractions)
     train_config.recalibration_phase()  # settings that cannot recalibrate fail now, not after two trainings
     splits = training_splits(sensor, scene, dataset, frames, progress)
-    head_extra = head_extra if head_extra is not None else SceneDraws(sensor, None, 0)
+    head_extra = head_extra if head_extra is not None else SceneDraws.none(sensor)
     train, val, test = (splits[k] for k in SPLITS)
     base_ids = tuple(c for c in sensor.camera_ids if c != added_camera)
 

@@ -95,8 +95,7 @@ def test_further_draws_are_the_scene_with_the_next_seeds_in_chunks(sensor, monke
     picked = next(iter(two))
     assert picked.camera_ids == ("cam2", "cam0")
     np.testing.assert_array_equal(picked.images, chunks[0].images[:, [2, 0]])
-    assert list(SceneDraws(sensor, None, 0)) == [] and SceneDraws(sensor, None, 0).describe() == {"draws": 0,
-                                                                                                   "frames": 0}
+    assert list(SceneDraws.none(sensor)) == [] and SceneDraws.none(sensor).describe() == {"draws": 0, "frames": 0}
     with pytest.raises(ValueError, match="draws must be an integer >= 0"):
         SceneDraws(sensor, scene, -1)
     with pytest.raises(ValueError, match="further draws need a scene"):
