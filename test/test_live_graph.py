@@ -72,6 +72,9 @@ def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(ros_domain, run_g
     assert summary["contract_violations"] == []
     assert summary["estimates"] > 100 and summary["matched_with_ground_truth"] > 100, summary
     assert summary["missing_camera_ids"] == []
+    # Every estimate names what the shipped model estimates (Fz only: it was trained on vertical presses).
+    shipped_components = json.loads((default_model_dir() / "model.json").read_text())["components"]
+    assert summary["estimated_components"] == [shipped_components], summary
     shipped = json.loads((default_model_dir() / "metrics.json").read_text())
     # The demo scene (a 1 mm press sliding over the surface) is not the test split: allow twice the test error.
     assert summary["rmse_total_n"][2] < 2 * shipped["rmse_total_n"][2] + 0.05, summary

@@ -33,6 +33,7 @@ def force_distribution() -> ForceDistribution:
     msg.total_force_n = Vector3(x=float(total[0]), y=float(total[1]), z=float(total[2]))
     msg.camera_ids = CAMERA_IDS[:3]
     msg.missing_camera_ids = CAMERA_IDS[3:]
+    msg.estimated_components = ["fx", "fy", "fz"]
     return msg
 
 

@@ -19,7 +19,7 @@ from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
-from tactile_description import load_sensor
+from tactile_description import FORCE_COMPONENTS, load_sensor
 from tactile_fusion.artifacts import save_model
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.training import build_model
@@ -64,7 +64,7 @@ def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool
             if truth:
                 truth_stamp = seconds_to_time(capture_s + truth_offset_s)
                 msg = force_distribution_msg(frame.bin_forces_n, sensor.grid, truth_stamp, sensor.frame_id,
-                                             sensor.camera_ids, [])
+                                             sensor.camera_ids, [], FORCE_COMPONENTS)
                 bag.write(GROUND_TRUTH_TOPIC, FORCES_TYPE, receive_ns + 100, serialize_message(msg))
             if bundles and msgs:
                 stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs]

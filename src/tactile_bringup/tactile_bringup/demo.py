@@ -25,7 +25,7 @@ from tactile_bringup.graph import sensor_graph
 from tactile_bringup.processes import start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
-from tactile_description import default_sensor_path, load_sensor
+from tactile_description import FORCE_COMPONENTS, default_sensor_path, load_sensor
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 
@@ -42,6 +42,7 @@ class Monitor(Node):
         self.matched: list[tuple[np.ndarray, np.ndarray]] = []  # (estimate, truth), each (rows, cols, 3)
         self.violations: list[str] = []
         self.missing_cameras: set[str] = set()
+        self.estimated_components: set[tuple[str, ...]] = set()
         self.last: tuple[float, float] | None = None  # (estimated Fz, true Fz)
         self.create_subscription(ForceDistribution, ESTIMATE_TOPIC, self.on_estimate, 50)
         self.create_subscription(ForceDistribution, GROUND_TRUTH_TOPIC, self.on_truth, 50)
@@ -65,6 +66,11 @@ class Monitor(Node):
         if not np.isfinite(estimate).all():
             self.violations.append("non-finite force")
             return
+        components = tuple(msg.estimated_components)
+        self.estimated_components.add(components)
+        left_out = [k for k, c in enumerate(FORCE_COMPONENTS) if c not in components]
+        if not components or estimate[..., left_out].any():
+            self.violations.append(f"forces in components not estimated (estimated: {list(components)})")
         total = np.array([msg.total_force_n.x, msg.total_force_n.y, msg.total_force_n.z])
         if not np.allclose(total, estimate.sum(axis=(0, 1)), atol=1e-4):
             self.violations.append("total_force_n is not the sum of the bins")
@@ -87,6 +93,7 @@ class Monitor(Node):
             "rmse_bin_n": metrics.get("rmse_bin_n"),
             "rmse_total_n": metrics.get("rmse_total_n"),
             "missing_camera_ids": sorted(self.missing_cameras),
+            "estimated_components": [list(c) for c in sorted(self.estimated_components)],
             "contract_violations": self.violations[:10],
         }
 

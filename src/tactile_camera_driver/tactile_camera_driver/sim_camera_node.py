@@ -19,7 +19,7 @@ from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
-from tactile_description import load_sensor
+from tactile_description import FORCE_COMPONENTS, load_sensor
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import Simulator, load_scene
 
@@ -60,7 +60,8 @@ class SimCameraNode(Node):
             stamp = seconds_to_time(capture_s + self.rng.uniform(0.0, self.stamp_jitter_s))
             self.image_pubs[camera_id].publish(mono8_to_msg(frame.images[i], stamp, f"{camera_id}_optical"))
         self.truth_pub.publish(force_distribution_msg(frame.bin_forces_n, self.sensor.grid, seconds_to_time(capture_s),
-                                                      self.sensor.frame_id, self.sensor.camera_ids, []))
+                                                      self.sensor.frame_id, self.sensor.camera_ids, [],
+                                                      FORCE_COMPONENTS))
 
 
 def main(args: list[str] | None = None) -> None:

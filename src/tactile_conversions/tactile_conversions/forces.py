@@ -15,7 +15,7 @@ from geometry_msgs.msg import Point, Vector3, Wrench, WrenchStamped
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from tactile_description import BinGrid
+from tactile_description import FORCE_COMPONENTS, BinGrid
 from tactile_msgs.msg import ForceDistribution
 
 
@@ -32,14 +32,24 @@ def checked_forces(bin_forces_n: np.ndarray, grid: BinGrid, dtype: type = np.flo
 
 
 def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
-                           camera_ids: Sequence[str], missing_camera_ids: Sequence[str]) -> ForceDistribution:
-    """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression)."""
+                           camera_ids: Sequence[str], missing_camera_ids: Sequence[str],
+                           estimated_components: Sequence[str]) -> ForceDistribution:
+    """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression), of which
+    `estimated_components` (of FORCE_COMPONENTS, in that order) carry an estimate and the others are zero."""
+    estimated = list(estimated_components)
+    if not estimated or estimated != [c for c in FORCE_COMPONENTS if c in estimated]:
+        raise ValueError(f"estimated components must be distinct names of {list(FORCE_COMPONENTS)} in that order, "
+                         f"got {estimated}")
     forces = checked_forces(bin_forces_n, grid, np.float32)
+    left_out = [k for k, c in enumerate(FORCE_COMPONENTS) if c not in estimated]
+    if forces[..., left_out].any():
+        raise ValueError(f"components {[FORCE_COMPONENTS[k] for k in left_out]} are not estimated but hold forces")
     total = forces.astype(np.float64).sum(axis=(0, 1))
     msg = ForceDistribution(header=Header(stamp=stamp, frame_id=frame_id), rows=grid.rows, cols=grid.cols,
                             bin_size_x_m=grid.bin_width_m, bin_size_y_m=grid.bin_length_m,
                             total_force_n=Vector3(x=float(total[0]), y=float(total[1]), z=float(total[2])),
-                            camera_ids=list(camera_ids), missing_camera_ids=list(missing_camera_ids))
+                            camera_ids=list(camera_ids), missing_camera_ids=list(missing_camera_ids),
+                            estimated_components=estimated)
     msg.forces_n = array.array("f", forces.tobytes())
     return msg
 

@@ -4,7 +4,7 @@ from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker
 
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
-from tactile_description import load_sensor
+from tactile_description import FORCE_COMPONENTS, load_sensor
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,8 @@ def loaded_bins(grid):
 
 def test_layout_is_row_major_with_components_innermost(grid):
     forces = loaded_bins(grid)
-    msg = force_distribution_msg(forces, grid, Time(sec=7), "tactile_surface", ["cam0", "cam1"], ["cam2"])
+    msg = force_distribution_msg(forces, grid, Time(sec=7), "tactile_surface", ["cam0", "cam1"], ["cam2"],
+                                 FORCE_COMPONENTS)
     flat = np.asarray(msg.forces_n)
     assert flat.size == grid.rows * grid.cols * 3
     assert flat[(3 * grid.cols + 7) * 3 + 2] == pytest.approx(0.3)
@@ -30,10 +31,23 @@ def test_layout_is_row_major_with_components_innermost(grid):
     assert msg.bin_size_x_m == pytest.approx(grid.bin_width_m)
     assert list(msg.camera_ids) == ["cam0", "cam1"] and list(msg.missing_camera_ids) == ["cam2"]
     assert msg.header.stamp.sec == 7 and msg.header.frame_id == "tactile_surface"
+    assert list(msg.estimated_components) == ["fx", "fy", "fz"]
+
+
+def test_components_not_estimated_are_named_and_must_be_zero(grid):
+    vertical = loaded_bins(grid)
+    vertical[..., :2] = 0.0
+    msg = force_distribution_msg(vertical, grid, Time(), "f", [], [], ("fz",))
+    assert list(msg.estimated_components) == ["fz"]
+    with pytest.raises(ValueError, match=r"\['fx', 'fy'\] are not estimated but hold forces"):
+        force_distribution_msg(loaded_bins(grid), grid, Time(), "f", [], [], ("fz",))
+    for wrong in [(), ("fz", "fx"), ("fz", "fz"), ("torque",)]:
+        with pytest.raises(ValueError, match="estimated components must be distinct names"):
+            force_distribution_msg(vertical, grid, Time(), "f", [], [], wrong)
 
 
 def test_wrench_carries_the_total_force_and_stamp(grid):
-    msg = force_distribution_msg(loaded_bins(grid), grid, Time(sec=3), "tactile_surface", [], [])
+    msg = force_distribution_msg(loaded_bins(grid), grid, Time(sec=3), "tactile_surface", [], [], FORCE_COMPONENTS)
     wrench = wrench_msg(msg)
     assert wrench.wrench.force.z == pytest.approx(0.35)
     assert wrench.header.stamp.sec == 3
@@ -43,13 +57,13 @@ def test_non_finite_or_misshapen_forces_are_never_published(grid):
     forces = loaded_bins(grid)
     forces[0, 0, 0] = np.nan
     with pytest.raises(FloatingPointError):
-        force_distribution_msg(forces, grid, Time(), "f", [], [])
+        force_distribution_msg(forces, grid, Time(), "f", [], [], FORCE_COMPONENTS)
     with pytest.raises(ValueError, match="shape"):
-        force_distribution_msg(np.zeros((3, 3, 3)), grid, Time(), "f", [], [])
+        force_distribution_msg(np.zeros((3, 3, 3)), grid, Time(), "f", [], [], FORCE_COMPONENTS)
     huge = loaded_bins(grid).astype(np.float64)
     huge[1, 1, 2] = 1e39  # finite in float64, Inf in the message's float32
     with pytest.raises(FloatingPointError):
-        force_distribution_msg(huge, grid, Time(), "f", [], [])
+        force_distribution_msg(huge, grid, Time(), "f", [], [], FORCE_COMPONENTS)
 
 
 def test_markers_are_one_line_per_loaded_bin_into_the_gel(grid):

@@ -1,6 +1,7 @@
 """The sensor description shared by the simulator, the model and the ROS nodes (no ROS import)."""
 
 from tactile_description.sensor import (
+    FORCE_COMPONENTS,
     SENSOR_ENV,
     BinGrid,
     CameraSpec,
@@ -15,6 +16,6 @@ from tactile_description.sensor import (
 )
 
 __all__ = [
-    "SENSOR_ENV", "BinGrid", "CameraSpec", "Crop", "FisheyeLens", "GelLayer", "ParticleSpec",
+    "FORCE_COMPONENTS", "SENSOR_ENV", "BinGrid", "CameraSpec", "Crop", "FisheyeLens", "GelLayer", "ParticleSpec",
     "SensorConfigError", "SensorDescription", "default_sensor_path", "load_sensor",
 ]

@@ -29,6 +29,11 @@ class SensorConfigError(ValueError):
     """A sensor description that is missing a key or holds an impossible value."""
 
 
+#: The components of a bin's force, in the order of every force array (rows, cols, 3) and of the messages:
+#: tangential along +x and +y, normal (positive in compression).
+FORCE_COMPONENTS = ("fx", "fy", "fz")
+
+
 @dataclass(frozen=True)
 class BinGrid:
     """The surface divided into rows x cols bins of equal area; row along y, column along x."""

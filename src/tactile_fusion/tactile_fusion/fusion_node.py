@@ -132,7 +132,7 @@ class FusionNode(Node):
         present = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if ok]
         missing = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if not ok]
         distribution = force_distribution_msg(forces, self.sensor.grid, bundle.header.stamp, self.sensor.frame_id,
-                                              present, missing)
+                                              present, missing, self.predictor.components)
         self.forces_pub.publish(distribution)
         self.wrench_pub.publish(wrench_msg(distribution))
         now_s = time.monotonic()

@@ -23,14 +23,14 @@ import numpy as np
 import torch
 from torch import nn
 
+from tactile_description import FORCE_COMPONENTS
+
 #: Grey levels of a uint8 image: difference images are divided by this so they lie in about [-1, 1].
 GREY_LEVELS = 255.0
 #: Pixels at this level or above are clipped by the camera and left out of the brightness gain.
 SATURATED = 255.0
 #: Brightness gains outside this range are clamped (a black or blinded camera gives no usable gain).
 GAIN_RANGE = (0.25, 4.0)
-#: The force components of a bin, in the order of the model's output.
-FORCE_COMPONENTS = ("fx", "fy", "fz")
 #: Activations of the fully connected layers: the paper's sigmoid, or ReLU. With ReLU the model reaches a fifth
 #: lower error, and fits its own training frames better too (docs/learning.md).
 FEATURE_ACTIVATIONS = {"sigmoid": torch.sigmoid, "relu": torch.relu}
