@@ -27,6 +27,10 @@ class BagError(ValueError):
     """A bag that cannot be written or read, or does not hold what was asked for."""
 
 
+class DefinitionMismatchError(BagError):
+    """A topic recorded with another definition of its message type than the installed one (an older tactile_msgs)."""
+
+
 class BagWriter:
     """A new MCAP bag; `write` takes a topic, its type name, the receive time in ns and the serialized message.
 
@@ -137,10 +141,10 @@ class BagReader:
         for connection in hashed:
             installed = typestore.hash_rihs01(connection.msgtype)
             if connection.digest != installed:
-                raise BagError(f"bag {self.path}: topic {connection.topic} was recorded with another definition of "
-                               f"{connection.msgtype} (type hash {connection.digest}) than the installed one "
-                               f"({installed}); read it with the version of the interface package that recorded it, "
-                               "or leave the topic out (--topics)")
+                raise DefinitionMismatchError(
+                    f"bag {self.path}: topic {connection.topic} was recorded with another definition of "
+                    f"{connection.msgtype} (type hash {connection.digest}) than the installed one ({installed}); read "
+                    "it with the version of the interface package that recorded it, or leave the topic out (--topics)")
         self._checked_topics.update(c.topic for c in connections)
 
     def close(self) -> None:

@@ -26,7 +26,7 @@ import numpy as np
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
-from tactile_bag.bagfile import BagError, BagReader
+from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.images import frame_from_images
 from tactile_conversions.ros_time import time_to_seconds
@@ -189,7 +189,7 @@ def read_ground_truth(bag: BagReader, sensor: SensorDescription, topic: str = GR
     """
     rows, cols = sensor.grid.rows, sensor.grid.cols
     if topic not in bag.topics and not required:
-        return np.zeros(0), np.zeros((0, rows, cols, 3), np.float32)
+        return no_ground_truth(sensor)
     bag.require_topics([topic])
     if bag.topics[topic] != FORCES_TYPE:
         raise BagError(f"bag {bag.path}: {topic} holds {bag.topics[topic]}, expected {FORCES_TYPE}")
@@ -206,8 +206,13 @@ def read_ground_truth(bag: BagReader, sensor: SensorDescription, topic: str = GR
         stamps.append(time_to_seconds(msg.header.stamp))
         forces.append(values)
     if not forces:
-        return np.zeros(0), np.zeros((0, rows, cols, 3), np.float32)
+        return no_ground_truth(sensor)
     return np.asarray(stamps), np.stack(forces)
+
+
+def no_ground_truth(sensor: SensorDescription) -> tuple[np.ndarray, np.ndarray]:
+    """The stamps and forces of a bag without ground truth, as read_ground_truth returns them."""
+    return np.zeros(0), np.zeros((0, sensor.grid.rows, sensor.grid.cols, 3), np.float32)
 
 
 def match_stamps(stamps_s: np.ndarray, truth_stamps_s: np.ndarray, tolerance_s: float = MATCH_TOLERANCE_S
@@ -243,9 +248,18 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
     check_predictor(predictor, sensor)
     with BagReader(path) as bag:
         source = choose_source(bag, sensor, source)
-        truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic or GROUND_TRUTH_TOPIC,
-                                                required=truth_topic is not None)
         reader = FrameReader(sensor, predictor.image_size)
+        try:
+            truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic or GROUND_TRUTH_TOPIC,
+                                                    required=truth_topic is not None)
+        except DefinitionMismatchError:
+            if truth_topic is not None:
+                raise
+            # The simulator's ground truth is optional: a bag recorded before ForceDistribution changed is still
+            # evaluated, without it, and the summary says why it has no metrics.
+            reason = f"ground truth on {GROUND_TRUTH_TOPIC} recorded with another ForceDistribution definition"
+            reader.skipped[reason] = bag.counts[GROUND_TRUTH_TOPIC]
+            truth_stamps, truth = no_ground_truth(sensor)
         frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
         reference = ReferenceFrames(sensor.n_cameras, reader.shape, reference_bundles)
         bundles = 0

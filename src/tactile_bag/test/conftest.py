@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from rclpy.serialization import serialize_message
+from rosbags.typesys import get_types_from_msg
 
 from tactile_bag.bagfile import BagWriter
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
@@ -42,14 +43,19 @@ def sim_frames(sensor):
 
 
 def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool = False, truth: bool = True,
-                  truth_offset_s: float = 0.0, seed: int = 0) -> list[float]:
+                  truth_offset_s: float = 0.0, seed: int = 0, truth_definition: str | None = None) -> list[float]:
     """Write `frames` into a new bag; returns each frame's capture time (s).
 
     Images are stamped in [capture, capture + JITTER_S], the ground truth at capture + truth_offset_s.
+    truth_definition: the ForceDistribution definition the ground-truth topic is recorded with (its type hash),
+    default the installed one; another one makes a bag as an older tactile_msgs recorded it (only the recorded
+    definition differs: the messages are the installed type's, for a reader that refuses them unread).
     """
     rng = np.random.default_rng(seed)
     captures = []
     with BagWriter(path) as bag:
+        if truth_definition is not None:
+            bag.typestore.register(get_types_from_msg(truth_definition, FORCES_TYPE))
         for frame in frames:
             capture_s = START_S + frame.time_s
             captures.append(capture_s)

@@ -2,17 +2,20 @@
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from ament_index_python.packages import get_package_share_directory
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_bag.bagfile import BagError, BagReader
+from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.cli import main
 from tactile_bag.evaluate import FrameReader, evaluate_bag, image_bundles, match_stamps
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.metrics import force_metrics
@@ -88,6 +91,23 @@ def test_a_dropped_camera_degrades_recorded_bundles(tmp_path, write_bag, sensor,
     assert summary["missing_camera_ids"] == ["cam1"]
     assert summary["estimates"] == len(frames) - 1 - last_reference
     assert summary["degraded_estimates"] == len([f for f in frames[last_reference:] if not f.camera_ok.all()]) > 0
+
+
+def test_ground_truth_of_an_older_message_definition_is_left_out_and_counted(tmp_path, write_bag, sensor, sim_frames,
+                                                                             predictor):
+    """A bag recorded before ForceDistribution got `estimated_components`: its images are still evaluated, its ground
+    truth (optional by default) is left out with the reason and count in the summary; asked for by name, refused."""
+    definition = (Path(get_package_share_directory("tactile_msgs")) / "msg" / "ForceDistribution.msg").read_text()
+    assert "string[] estimated_components" in definition
+    write_bag(tmp_path / "bag", sensor, sim_frames,
+              truth_definition=definition.replace("string[] estimated_components", ""))
+    summary = evaluate_bag(tmp_path / "bag", sensor, predictor).summary()
+    assert summary["estimates"] >= len(sim_frames) - 11 and summary["rmse_bin_n"] is None
+    assert summary["ground_truth_messages"] == 0
+    assert summary["skipped"] == {f"ground truth on {GROUND_TRUTH_TOPIC} recorded with another ForceDistribution "
+                                  "definition": len(sim_frames)}
+    with pytest.raises(DefinitionMismatchError, match=f"topic {GROUND_TRUTH_TOPIC} was recorded with another"):
+        evaluate_bag(tmp_path / "bag", sensor, predictor, truth_topic=GROUND_TRUTH_TOPIC)
 
 
 def test_without_ground_truth_only_statistics(tmp_path, write_bag, sensor, sim_frames, predictor):

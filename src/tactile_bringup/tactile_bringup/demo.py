@@ -23,9 +23,10 @@ from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
 from tactile_bringup.processes import start_graph, stop_nodes
+from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
-from tactile_description import FORCE_COMPONENTS, default_sensor_path, load_sensor
+from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 
@@ -51,7 +52,11 @@ class Monitor(Node):
         return np.asarray(msg.forces_n, dtype=np.float64).reshape(msg.rows, msg.cols, 3)
 
     def on_truth(self, msg: ForceDistribution) -> None:
-        self.truths.append((time_to_seconds(msg.header.stamp), self.forces(msg)))
+        truth = self.forces(msg)
+        problem = components_problem(truth, msg.estimated_components)
+        if problem:
+            self.violations.append(f"ground truth: {problem}")
+        self.truths.append((time_to_seconds(msg.header.stamp), truth))
 
     def on_estimate(self, msg: ForceDistribution) -> None:
         now_s = self.get_clock().now().nanoseconds * 1e-9
@@ -66,11 +71,10 @@ class Monitor(Node):
         if not np.isfinite(estimate).all():
             self.violations.append("non-finite force")
             return
-        components = tuple(msg.estimated_components)
-        self.estimated_components.add(components)
-        left_out = [k for k, c in enumerate(FORCE_COMPONENTS) if c not in components]
-        if not components or estimate[..., left_out].any():
-            self.violations.append(f"forces in components not estimated (estimated: {list(components)})")
+        self.estimated_components.add(tuple(msg.estimated_components))
+        problem = components_problem(estimate, msg.estimated_components)
+        if problem:
+            self.violations.append(problem)
         total = np.array([msg.total_force_n.x, msg.total_force_n.y, msg.total_force_n.z])
         if not np.allclose(total, estimate.sum(axis=(0, 1)), atol=1e-4):
             self.violations.append("total_force_n is not the sum of the bins")

@@ -36,14 +36,11 @@ def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time,
                            estimated_components: Sequence[str]) -> ForceDistribution:
     """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression), of which
     `estimated_components` (of FORCE_COMPONENTS, in that order) carry an estimate and the others are zero."""
-    estimated = list(estimated_components)
-    if not estimated or estimated != [c for c in FORCE_COMPONENTS if c in estimated]:
-        raise ValueError(f"estimated components must be distinct names of {list(FORCE_COMPONENTS)} in that order, "
-                         f"got {estimated}")
     forces = checked_forces(bin_forces_n, grid, np.float32)
-    left_out = [k for k, c in enumerate(FORCE_COMPONENTS) if c not in estimated]
-    if forces[..., left_out].any():
-        raise ValueError(f"components {[FORCE_COMPONENTS[k] for k in left_out]} are not estimated but hold forces")
+    estimated = list(estimated_components)
+    problem = components_problem(forces, estimated)
+    if problem:
+        raise ValueError(problem)
     total = forces.astype(np.float64).sum(axis=(0, 1))
     msg = ForceDistribution(header=Header(stamp=stamp, frame_id=frame_id), rows=grid.rows, cols=grid.cols,
                             bin_size_x_m=grid.bin_width_m, bin_size_y_m=grid.bin_length_m,
@@ -52,6 +49,18 @@ def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time,
                             estimated_components=estimated)
     msg.forces_n = array.array("f", forces.tobytes())
     return msg
+
+
+def components_problem(forces: np.ndarray, estimated_components: Sequence[str]) -> str | None:
+    """What is wrong with `estimated_components` as the `estimated_components` of forces (rows, cols, 3), or None: they
+    must be distinct names of FORCE_COMPONENTS in that order, and the components left out must be zero."""
+    estimated = list(estimated_components)
+    if not estimated or estimated != [c for c in FORCE_COMPONENTS if c in estimated]:
+        return f"estimated components must be distinct names of {list(FORCE_COMPONENTS)} in that order, got {estimated}"
+    left_out = [k for k, c in enumerate(FORCE_COMPONENTS) if c not in estimated]
+    if np.asarray(forces)[..., left_out].any():
+        return f"components {[FORCE_COMPONENTS[k] for k in left_out]} are not estimated but hold forces"
+    return None
 
 
 def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:

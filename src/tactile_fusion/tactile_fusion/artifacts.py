@@ -17,8 +17,8 @@ from pathlib import Path
 
 import torch
 
-from tactile_description import SensorDescription
-from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig, checked_components
+from tactile_description import FORCE_COMPONENTS, SensorDescription
+from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components
 
 MODEL_JSON = "model.json"
 STATE_DICT = "model.pt"

@@ -131,8 +131,12 @@ class FusionNode(Node):
             return
         present = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if ok]
         missing = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if not ok]
-        distribution = force_distribution_msg(forces, self.sensor.grid, bundle.header.stamp, self.sensor.frame_id,
-                                              present, missing, self.predictor.components)
+        try:
+            distribution = force_distribution_msg(forces, self.sensor.grid, bundle.header.stamp, self.sensor.frame_id,
+                                                  present, missing, self.predictor.components)
+        except ValueError as exc:  # a model whose graph outputs forces its model.json says it does not estimate
+            self.get_logger().error(f"no estimate published: {exc}", throttle_duration_sec=5.0)
+            return
         self.forces_pub.publish(distribution)
         self.wrench_pub.publish(wrench_msg(distribution))
         now_s = time.monotonic()

@@ -22,9 +22,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from tactile_description import FORCE_COMPONENTS
 from tactile_fusion.data import FrameSet
 from tactile_fusion.least_squares import fit_fusion
-from tactile_fusion.model import FORCE_COMPONENTS, ForceFusionNet, ModelConfig, checked_components
+from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 
 #: Precisions of the gradient steps on cached features (head phase, recalibration). "bf16": the forward pass of each
