@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
@@ -12,7 +13,10 @@ from tactile_bringup.processes import spin_until, start_graph, start_node, stop_
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_description import default_sensor_path, load_sensor
-from tactile_fusion.artifacts import default_model_dir
+from tactile_fusion.artifacts import MODEL_JSON, default_model_dir, save_model
+from tactile_fusion.model import ModelConfig
+from tactile_fusion.pipeline import export_all
+from tactile_fusion.training import build_model
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 from tactile_sim import Simulator, load_scene
 
@@ -100,28 +104,58 @@ def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_pat
     assert any(m.markers[0].action == Marker.ADD and m.markers[0].points for m in first + markers)
 
 
-def test_the_fusion_node_reports_bundles_lost_on_the_way(ros_probe, tmp_path):
+def fusion_node_on_bundles(ros_probe, tmp_path, sequences, parameters=None, wait_for=None):
+    """Start a fusion node (reference from its first bundle), publish the first frames of the demo scene to it as
+    bundles numbered `sequences`, collect its estimates until `wait_for` of them (or 30 s), stop it; returns (its exit
+    code, its estimates, its log)."""
     sensor = load_sensor()
-    frames = list(Simulator(sensor).stream(load_scene("demo", sensor), frames=5))
+    frames = list(Simulator(sensor).stream(load_scene("demo", sensor), frames=len(sequences)))
     fusion = start_node(NodeSpec("tactile_fusion", "fusion_node", "fusion",
                                  {"sensor_config": str(default_sensor_path()), "reference_bundles": 1,
-                                  "publish_markers": False}), tmp_path)
+                                  "publish_markers": False, **(parameters or {})}), tmp_path)
     bundles = ros_probe.create_publisher(ImageBundle, "/tactile/image_bundle", 10)
     estimates = []
     ros_probe.create_subscription(ForceDistribution, "/tactile/force_distribution", estimates.append, 10)
     try:
         assert spin_until(ros_probe, lambda: bundles.get_subscription_count() > 0, 60.0)
-        for frame, sequence in zip(frames, (0, 1, 2, 6, 7), strict=True):  # bundles 3, 4 and 5 got lost
+        for frame, sequence in zip(frames, sequences, strict=True):
             stamp = seconds_to_time(1_700_000_000.0 + frame.time_s)
             images = [mono8_to_msg(image, stamp, f"{c}_optical") for c, image in zip(sensor.camera_ids, frame.images,
                                                                                      strict=True)]
             bundles.publish(ImageBundle(sequence=sequence, camera_ids=list(sensor.camera_ids), images=images))
             spin_until(ros_probe, lambda: False, 0.1)
-        got_all = spin_until(ros_probe, lambda: len(estimates) == 4, 30.0)  # bundle 0 became the reference
+        if wait_for:
+            spin_until(ros_probe, lambda: len(estimates) == wait_for, 30.0)
+        else:  # time for the last bundles' estimates to arrive, if any were published
+            spin_until(ros_probe, lambda: False, 2.0)
     finally:
         codes = stop_nodes([fusion])
-    log = (tmp_path / "fusion.log").read_text()
-    assert codes == [0] and got_all, log
+    return codes[0], estimates, (tmp_path / "fusion.log").read_text()
+
+
+def test_the_fusion_node_reports_bundles_lost_on_the_way(ros_probe, tmp_path):
+    # Bundles 3, 4 and 5 got lost; bundle 0 becomes the reference.
+    code, estimates, log = fusion_node_on_bundles(ros_probe, tmp_path, (0, 1, 2, 6, 7), wait_for=4)
+    got_all = len(estimates) == 4
+    assert code == 0 and got_all, log
     assert "lost 3 bundle(s) before bundle 6 (3 since start)" in log
     # The shipped model was trained on vertical presses: it says that it publishes no shear.
     assert "the model estimates fz only: fx, fy are published as 0" in log
+
+
+def test_the_fusion_node_publishes_no_estimate_that_contradicts_its_model_and_keeps_running(ros_probe, tmp_path):
+    """A model directory whose model.json says "fz only" while its graph outputs all three components (edited by
+    hand, or files of two models mixed): every estimate is refused with an error in the log, none is published with
+    components it claims not to estimate, and the node keeps running until it is stopped."""
+    sensor = load_sensor()
+    config = ModelConfig(image_size=128, conv_channels=(4, 4, 4), hidden_features=16, camera_features=8)
+    model = build_model(config, sensor.camera_ids, sensor.grid.rows, sensor.grid.cols,
+                        torch.tensor([0.001, 0.001, 0.01]), seed=0)
+    model_dir = save_model(model, tmp_path / "model", sensor.name)
+    export_all(model, model_dir)
+    description = json.loads((model_dir / MODEL_JSON).read_text())
+    assert description["components"] == ["fx", "fy", "fz"]
+    (model_dir / MODEL_JSON).write_text(json.dumps({**description, "components": ["fz"]}))
+    code, estimates, log = fusion_node_on_bundles(ros_probe, tmp_path, (0, 1, 2, 3), {"model_dir": str(model_dir)})
+    assert code == 0 and estimates == [], log
+    assert "no estimate published: components ['fx', 'fy'] are not estimated but hold forces" in log
