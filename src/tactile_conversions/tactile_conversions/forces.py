@@ -15,7 +15,7 @@ from geometry_msgs.msg import Point, Vector3, Wrench, WrenchStamped
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from tactile_description import FORCE_COMPONENTS, BinGrid
+from tactile_description import FORCE_COMPONENTS, BinGrid, left_out_components
 from tactile_msgs.msg import ForceDistribution
 
 
@@ -37,8 +37,7 @@ def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time,
     """The message for forces of shape (rows, cols, 3) in newtons (fz positive in compression), of which
     `estimated_components` (of FORCE_COMPONENTS, in that order) carry an estimate and the others are zero."""
     forces = checked_forces(bin_forces_n, grid, np.float32)
-    estimated = list(estimated_components)
-    problem = components_problem(forces, estimated)
+    problem = components_problem(forces, estimated_components)
     if problem:
         raise ValueError(problem)
     total = forces.astype(np.float64).sum(axis=(0, 1))
@@ -46,7 +45,7 @@ def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time,
                             bin_size_x_m=grid.bin_width_m, bin_size_y_m=grid.bin_length_m,
                             total_force_n=Vector3(x=float(total[0]), y=float(total[1]), z=float(total[2])),
                             camera_ids=list(camera_ids), missing_camera_ids=list(missing_camera_ids),
-                            estimated_components=estimated)
+                            estimated_components=list(estimated_components))
     msg.forces_n = array.array("f", forces.tobytes())
     return msg
 
@@ -57,9 +56,9 @@ def components_problem(forces: np.ndarray, estimated_components: Sequence[str]) 
     estimated = list(estimated_components)
     if not estimated or estimated != [c for c in FORCE_COMPONENTS if c in estimated]:
         return f"estimated components must be distinct names of {list(FORCE_COMPONENTS)} in that order, got {estimated}"
-    left_out = [k for k, c in enumerate(FORCE_COMPONENTS) if c not in estimated]
-    if np.asarray(forces)[..., left_out].any():
-        return f"components {[FORCE_COMPONENTS[k] for k in left_out]} are not estimated but hold forces"
+    left_out = left_out_components(estimated)
+    if np.asarray(forces)[..., [FORCE_COMPONENTS.index(c) for c in left_out]].any():
+        return f"components {list(left_out)} are not estimated but hold forces"
     return None
 
 

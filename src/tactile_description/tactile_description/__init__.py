@@ -12,10 +12,12 @@ from tactile_description.sensor import (
     SensorConfigError,
     SensorDescription,
     default_sensor_path,
+    left_out_components,
     load_sensor,
 )
 
 __all__ = [
     "FORCE_COMPONENTS", "SENSOR_ENV", "BinGrid", "CameraSpec", "Crop", "FisheyeLens", "GelLayer", "ParticleSpec",
-    "SensorConfigError", "SensorDescription", "default_sensor_path", "load_sensor",
+    "SensorConfigError", "SensorDescription", "default_sensor_path", "left_out_components",
+    "load_sensor",
 ]

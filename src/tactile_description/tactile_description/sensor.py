@@ -34,6 +34,11 @@ class SensorConfigError(ValueError):
 FORCE_COMPONENTS = ("fx", "fy", "fz")
 
 
+def left_out_components(components) -> tuple[str, ...]:
+    """The force components not among `components`: those an estimate carrying these outputs as exact zeros."""
+    return tuple(c for c in FORCE_COMPONENTS if c not in components)
+
+
 @dataclass(frozen=True)
 class BinGrid:
     """The surface divided into rows x cols bins of equal area; row along y, column along x."""

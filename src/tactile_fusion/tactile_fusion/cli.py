@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from tactile_description import SensorConfigError, load_sensor
+from tactile_description import SensorConfigError, left_out_components, load_sensor
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ModelFileError,
@@ -36,7 +36,7 @@ from tactile_fusion.artifacts import (
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import metrics_table
-from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig, left_out_components
+from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError

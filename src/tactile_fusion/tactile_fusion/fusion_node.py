@@ -36,11 +36,10 @@ from tactile_conversions.images import frame_from_images
 from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
-from tactile_description import load_sensor
+from tactile_description import left_out_components, load_sensor
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ProcessingLoad, ReferenceFrames
-from tactile_fusion.model import left_out_components
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: Default `markers_rate_hz`: enough for a display (see above).

@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tactile_description import FORCE_COMPONENTS
-from tactile_fusion.model import ForceFusionNet, left_out_components
+from tactile_description import FORCE_COMPONENTS, left_out_components
+from tactile_fusion.model import ForceFusionNet
 from tactile_fusion.sources import normalised_rmse
 
 #: Candidate ridges, relative to the number of training frames; features are of order 1 (sigmoid: in (0, 1), ReLU:

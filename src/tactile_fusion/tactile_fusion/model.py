@@ -288,11 +288,6 @@ def checked_components(components) -> tuple[str, ...]:
     return tuple(c for c in FORCE_COMPONENTS if c in names)
 
 
-def left_out_components(components: tuple[str, ...]) -> tuple[str, ...]:
-    """The force components a model with these estimated components outputs as 0."""
-    return tuple(c for c in FORCE_COMPONENTS if c not in components)
-
-
 def estimated_components(bin_forces_n: torch.Tensor | np.ndarray) -> tuple[str, ...]:
     """The force components that are not zero in every sample of (N, rows, cols, 3) training forces.
 
