@@ -1,6 +1,7 @@
 """A trained model on disk: one directory (the shipped one is src/tactile_fusion/models/default).
 
-  model.json          model config, camera ids, bin grid, force scale, sensor name (what `load_model` needs)
+  model.json          model config, camera ids, bin grid, force scale, estimated components, Fz threshold, sensor
+                      name (what `load_model` needs)
   model.pt            the torch state dict
   model.onnx          float32 ONNX graph           (export.py)
   model_int8.onnx     int8-quantized ONNX graph    (fusion layer in float)
@@ -18,7 +19,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import FORCE_COMPONENTS, SensorDescription
-from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components
+from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
 
 MODEL_JSON = "model.json"
 STATE_DICT = "model.pt"
@@ -71,6 +72,7 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = ""
         "cols": model.cols,
         "force_scale_n": [float(v) for v in model.force_scale_n],
         "components": list(model.components),
+        "fz_threshold_n": model.fz_threshold_n,
         "model_config": model.config.to_dict(),
     }
     write_json(out_dir / MODEL_JSON, description)
@@ -99,12 +101,20 @@ def model_components(description: dict) -> tuple[str, ...]:
         raise ModelFileError(f"{MODEL_JSON}: {exc}") from exc
 
 
+def model_threshold(description: dict) -> float | None:
+    """The Fz soft threshold a model.json gives (None for a model saved before models had one)."""
+    try:
+        return checked_threshold(description.get("fz_threshold_n"))
+    except ValueError as exc:
+        raise ModelFileError(f"{MODEL_JSON}: {exc}") from exc
+
+
 def load_model(model_dir: str | Path) -> ForceFusionNet:
     """The torch model of a model directory, in evaluation mode."""
     description = read_model_json(model_dir)
     model = ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
                            description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
-                           model_components(description))
+                           model_components(description), model_threshold(description))
     state_path = Path(model_dir) / STATE_DICT
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")

@@ -31,6 +31,7 @@ from tactile_fusion.artifacts import (
     check_model_fits,
     default_model_dir,
     model_components,
+    model_threshold,
     read_model_json,
 )
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
@@ -119,11 +120,16 @@ def cmd_train(args) -> int:
                                progress=not args.quiet, threads=args.threads, data_source=source, head_extra=head_extra)
     print(metrics_table({f"{splits['test'].scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
-    components = model_components(read_model_json(args.out))
+    description = read_model_json(args.out)
+    components = model_components(description)
     left_out = left_out_components(components)
     if left_out:
         print(f"it estimates {', '.join(components)} only: the training data has no {', '.join(left_out)}, which "
               "the model outputs as 0")
+    threshold = model_threshold(description)
+    if threshold is not None:
+        print(f"its Fz threshold, chosen on the validation split: {1e3 * threshold:.3g} mN (Fz per bin comes out as "
+              "max(Fz - threshold, 0))")
     return 0
 
 

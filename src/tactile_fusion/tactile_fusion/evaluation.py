@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from tactile_fusion.data import FrameSet
 from tactile_fusion.inference import ForcePredictor
 from tactile_fusion.metrics import force_metrics
+from tactile_fusion.model import ForceFusionNet
 
 
 def predict_frames(predictor: ForcePredictor, frames: FrameSet, batch_size: int = 32,
@@ -26,3 +28,13 @@ def evaluate(predictor: ForcePredictor, frames: FrameSet, progress: bool = False
     """(metrics, predictions) of `predictor` on `frames`."""
     predicted = predict_frames(predictor, frames, progress=progress)
     return force_metrics(predicted, frames.bin_forces_n), predicted
+
+
+@torch.no_grad()
+def predict_torch(model: ForceFusionNet, frames: FrameSet, batch_size: int = 32) -> np.ndarray:
+    """(N, rows, cols, 3) newtons from the torch model (evaluation mode)."""
+    model.eval()
+    reference = torch.from_numpy(np.asarray(frames.reference))
+    out = [model(torch.from_numpy(np.asarray(frames.images[i:i + batch_size])), reference).numpy()
+           for i in range(0, len(frames), batch_size)]
+    return np.concatenate(out)

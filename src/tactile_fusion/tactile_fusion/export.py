@@ -40,7 +40,7 @@ class _Float16Graph(nn.Module):
 
     def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
         difference = difference_images(images, reference).to(torch.float16)
-        return (self.model.forward_normalised(difference) * self.model.force_scale_n).to(torch.float32)
+        return self.model.to_newtons(self.model.forward_normalised(difference))
 
 
 def copy_to_half(model: ForceFusionNet) -> ForceFusionNet:

@@ -80,6 +80,9 @@ class FusionNode(Node):
         if left_out:
             self.get_logger().warning(f"the model estimates {', '.join(self.predictor.components)} only: "
                                       f"{', '.join(left_out)} are published as 0 (its training data had none)")
+        if self.predictor.fz_threshold_n is not None:
+            self.get_logger().info(f"Fz per bin below {1e3 * self.predictor.fz_threshold_n:.2f} mN is published as 0 "
+                                   "(the model's Fz threshold)")
 
     def on_capture_reference(self, _request, response):
         self.reference.reset()

@@ -24,6 +24,7 @@ from tactile_fusion.artifacts import (
     default_model_dir,
     load_model,
     model_components,
+    model_threshold,
     read_model_json,
 )
 from tactile_fusion.export import copy_to_half
@@ -45,12 +46,13 @@ class ForcePredictor:
     backend = ""
 
     def __init__(self, camera_ids: Sequence[str], rows: int, cols: int, image_size: int, precision: str,
-                 components: Sequence[str]):
+                 components: Sequence[str], fz_threshold_n: float | None):
         self.camera_ids = tuple(camera_ids)
         self.rows, self.cols = rows, cols
         self.image_size = image_size
         self.precision = precision
         self.components = tuple(components)  # the force components estimated; the others are always 0
+        self.fz_threshold_n = fz_threshold_n  # Fz per bin below it comes out as 0 (ForceFusionNet.to_newtons)
 
     def predict(self, images: np.ndarray, reference: np.ndarray, camera_ids: Sequence[str] | None = None,
                 camera_ok: np.ndarray | None = None) -> np.ndarray:
@@ -136,7 +138,7 @@ class TorchPredictor(ForcePredictor):
 
     def __init__(self, model: ForceFusionNet, precision: str = "fp32", threads: int | None = DEFAULT_THREADS):
         super().__init__(model.camera_ids, model.rows, model.cols, model.config.image_size, precision,
-                         model.components)
+                         model.components, model.fz_threshold_n)
         if precision not in BACKENDS["torch"]:
             raise ValueError(f"torch backend: precision must be one of {BACKENDS['torch']}, got {precision!r}")
         self.model = model.eval() if precision == "fp32" else copy_to_half(model)
@@ -147,8 +149,7 @@ class TorchPredictor(ForcePredictor):
     @torch.no_grad()
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         difference = difference_images(torch.from_numpy(images), torch.from_numpy(reference)).to(self.dtype)
-        normalised = self.model.forward_normalised(difference)
-        return (normalised.float() * self.model.force_scale_n.float()).numpy()
+        return self.model.to_newtons(self.model.forward_normalised(difference)).numpy()
 
 
 class OnnxRuntimePredictor(ForcePredictor):
@@ -158,7 +159,7 @@ class OnnxRuntimePredictor(ForcePredictor):
                  threads: int | None = DEFAULT_THREADS):
         size = description["model_config"]["image_size"]
         super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision,
-                         model_components(description))
+                         model_components(description), model_threshold(description))
         self.session = onnx_session(onnx_path, threads)
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:

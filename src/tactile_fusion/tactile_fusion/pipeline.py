@@ -38,6 +38,7 @@ from tactile_fusion.data import (
 )
 from tactile_fusion.evaluation import evaluate
 from tactile_fusion.export import export_onnx, quantize_int8
+from tactile_fusion.fz_threshold import fit_fz_threshold
 from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, estimated_components, force_scale_from_targets
 from tactile_fusion.plots import plot_fz_maps
@@ -149,6 +150,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     head_extra = head_extra if head_extra is not None else SceneDraws.none(sensor)
     model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
                                  progress, head_extra)
+    results["fz_threshold"] = fit_fz_threshold(model, splits["val"])
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
     export_all(model, out_dir)

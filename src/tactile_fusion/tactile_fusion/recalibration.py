@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from tactile_fusion.data import FrameSet
+from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ForceFusionNet
@@ -82,16 +83,6 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
         model.load_state_dict(trained)
     model.eval()
     return model, result, time.perf_counter() - started
-
-
-@torch.no_grad()
-def predict_torch(model: ForceFusionNet, frames: FrameSet, batch_size: int = 32) -> np.ndarray:
-    """(N, rows, cols, 3) newtons from the torch model (evaluation mode)."""
-    model.eval()
-    reference = torch.from_numpy(np.asarray(frames.reference))
-    out = [model(torch.from_numpy(np.asarray(frames.images[i:i + batch_size])), reference).numpy()
-           for i in range(0, len(frames), batch_size)]
-    return np.concatenate(out)
 
 
 def fraction_subset(frames: FrameSet, fraction: float, seed: int) -> FrameSet:

@@ -19,11 +19,12 @@ import numpy as np
 from tactile_description import SensorDescription
 from tactile_fusion.artifacts import write_json
 from tactile_fusion.data import SPLITS, SceneDraws, describe_splits
+from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.pipeline import train_model, training_splits
 from tactile_fusion.plots import least_squares_line, plot_recalibration
-from tactile_fusion.recalibration import predict_torch, recalibration_sweep
+from tactile_fusion.recalibration import recalibration_sweep
 from tactile_fusion.training import TrainConfig
 
 REPORT_JSON = "recalibration.json"

@@ -45,7 +45,14 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     assert training["data"]["head_extra"] == {"draws": 1, "scene": "paper_grid",
                                               "seeds": [training["data"]["seed"] + 1], "frames": 60}
     cycles = [""] + [f"_{c}" for c in range(2, TrainConfig().head_cycles + 1)]  # the default head cycles
-    assert set(training["phases"]) == {"end_to_end", *(f"{p}{c}" for c in cycles for p in ("head", "fusion_fit"))}
+    assert set(training["phases"]) == {"end_to_end", *(f"{p}{c}" for c in cycles for p in ("head", "fusion_fit")),
+                                       "fz_threshold"}
+    # The Fz threshold the last step chose on the validation split is the model's.
+    threshold = training["phases"]["fz_threshold"]
+    assert json.loads((out / MODEL_JSON).read_text())["fz_threshold_n"] == threshold["fz_threshold_n"]
+    assert "none" in threshold["val_rmse_bin_fz_n"] and len(threshold["val_rmse_total_fz_n"]) == 32
+    assert ("its Fz threshold, chosen on the validation split" in result.stdout) == \
+        (threshold["fz_threshold_n"] is not None)
     metrics = json.loads((out / METRICS_JSON).read_text())
     assert set(metrics["backends"]) == {"onnxruntime_fp32", "onnxruntime_int8", "onnxruntime_fp16", "torch_fp32",
                                         "torch_fp16"}

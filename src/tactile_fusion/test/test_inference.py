@@ -183,6 +183,47 @@ def test_a_model_of_fz_alone_exports_and_runs_in_every_backend_and_precision(mod
                                    err_msg=f"{backend} {precision}")
 
 
+def test_a_model_with_an_fz_threshold_applies_it_in_every_backend_and_precision(model_dir, tmp_path):
+    out, frames = model_dir
+    plain = load_predictor(out, "torch").predict_batch(frames.images, frames.reference)
+    model = load_model(out)
+    model.fz_threshold_n = float(np.median(np.abs(plain[..., 2])))  # acts on about half of the bins
+    save_model(model, tmp_path, "synthetic")
+    export_onnx(model, tmp_path / ONNX_FILES["fp32"])
+    export_onnx(model, tmp_path / ONNX_FILES["fp16"], "fp16")
+    quantize_int8(tmp_path / ONNX_FILES["fp32"], tmp_path / ONNX_FILES["int8"])  # refuses a quantized fusion layer
+    assert json.loads((tmp_path / MODEL_JSON).read_text())["fz_threshold_n"] == model.fz_threshold_n
+    assert load_model(tmp_path).fz_threshold_n == model.fz_threshold_n
+    expected = plain.copy()
+    expected[..., 2] = np.maximum(plain[..., 2] - model.fz_threshold_n, 0.0)
+    assert 0 < np.count_nonzero(expected[..., 2]) < expected[..., 2].size
+    for backend, precision in (("torch", "fp32"), ("torch", "fp16"), ("onnxruntime", "fp32"),
+                               ("onnxruntime", "fp16"), ("onnxruntime", "int8")):
+        predictor = load_predictor(tmp_path, backend, precision)
+        assert predictor.fz_threshold_n == model.fz_threshold_n
+        predicted = predictor.predict_batch(frames.images, frames.reference)
+        assert predicted[..., 2].min() >= 0.0, (backend, precision)
+        tolerance = 1e-5 if precision == "fp32" else 1e-2
+        np.testing.assert_allclose(predicted, expected, rtol=0, atol=tolerance, err_msg=f"{backend} {precision}")
+
+
+def test_a_model_json_without_an_fz_threshold_has_none_and_a_bad_one_is_refused(model_dir, tmp_path):
+    out, _ = model_dir
+    save_model(load_model(out), tmp_path)
+    description = json.loads((tmp_path / MODEL_JSON).read_text())
+    assert description["fz_threshold_n"] is None
+    del description["fz_threshold_n"]  # a model saved before models had one
+    (tmp_path / MODEL_JSON).write_text(json.dumps(description))
+    assert load_model(tmp_path).fz_threshold_n is None
+    export_onnx(load_model(tmp_path), tmp_path / ONNX_FILES["fp32"])
+    assert load_predictor(tmp_path, "onnxruntime").fz_threshold_n is None
+    for bad in (-0.001, "NaN", [0.001]):
+        (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "fz_threshold_n": bad}))
+        for backend in ("torch", "onnxruntime"):
+            with pytest.raises(ModelFileError, match="fz_threshold_n must be None or a finite number"):
+                load_predictor(tmp_path, backend)
+
+
 def test_a_model_json_from_before_components_could_be_left_out_estimates_all_three(model_dir, tmp_path):
     out, frames = model_dir
     save_model(load_model(out), tmp_path)

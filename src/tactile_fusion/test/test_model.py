@@ -119,6 +119,26 @@ def test_forward_returns_newtons_through_the_force_scale(tiny_config):
         torch.testing.assert_close(model(images, reference), normalised * scale)
 
 
+def test_the_fz_threshold_zeroes_fz_below_it_shifts_fz_above_it_and_leaves_fx_fy_alone(tiny_config):
+    scale = torch.tensor([0.001, 0.002, 0.05])
+    plain = ForceFusionNet(tiny_config, ("a",), 1, 4, scale)
+    thresholded = ForceFusionNet(tiny_config, ("a",), 1, 4, scale, fz_threshold_n=0.01)
+    # normalised Fz 0.1, 0.2, 0.4 and -0.2 (5, 10, 20 and -10 mN); Fx and Fy of both signs
+    normalised = torch.tensor([[[[1.0, -1.0, 0.1], [-2.0, 2.0, 0.2], [3.0, 0.5, 0.4], [-1.0, 1.0, -0.2]]]])
+    newtons = normalised * scale
+    torch.testing.assert_close(plain.to_newtons(normalised), newtons)
+    out = thresholded.to_newtons(normalised)
+    torch.testing.assert_close(out[..., :2], newtons[..., :2])
+    torch.testing.assert_close(out[..., 2], torch.tensor([[[0.0, 0.0, 0.01, 0.0]]]))
+    assert out.dtype == torch.float32 and thresholded.to_newtons(normalised.half()).dtype == torch.float32
+
+
+@pytest.mark.parametrize("threshold", [-0.001, float("nan"), float("inf"), "high"])
+def test_a_bad_fz_threshold_is_rejected(tiny_config, threshold):
+    with pytest.raises(ValueError, match="fz_threshold_n must be None or a finite number >= 0"):
+        ForceFusionNet(tiny_config, ("a",), 1, 4, fz_threshold_n=threshold)
+
+
 @pytest.mark.parametrize("level", [0, 255])
 def test_all_black_and_saturated_frames_give_finite_forces(tiny_config, level):
     model = ForceFusionNet(tiny_config, ("a", "b"), 3, 4).eval()

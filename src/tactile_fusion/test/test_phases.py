@@ -9,10 +9,12 @@ import torch
 
 from tactile_fusion import sources
 from tactile_fusion.data import split_indices
+from tactile_fusion.evaluation import predict_torch
+from tactile_fusion.fz_threshold import fit_fz_threshold
 from tactile_fusion.least_squares import fit_fusion
-from tactile_fusion.model import force_scale_from_targets
+from tactile_fusion.model import ForceFusionNet, force_scale_from_targets
 from tactile_fusion.pipeline import train_model
-from tactile_fusion.recalibration import add_camera, fraction_subset, predict_torch, recalibrate
+from tactile_fusion.recalibration import add_camera, fraction_subset, recalibrate
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 from tactile_fusion.training import (
     END_TO_END_SETTINGS,
@@ -587,3 +589,43 @@ def test_fraction_subsets_are_nested_and_seeded(frames):
     assert {bytes(i) for i in small.images} <= {bytes(i) for i in large.images}
     with pytest.raises(ValueError, match="fraction"):
         fraction_subset(frames, 0.0, seed=1)
+
+
+def constant_fz_model(tiny_config, frames, fz_n: float, components=("fx", "fy", "fz")) -> ForceFusionNet:
+    """A model for `frames` that answers every frame with `fz_n` newtons of Fz in every bin (and no Fx, Fy)."""
+    scale = torch.tensor([0.01, 0.01, 0.05])
+    model = ForceFusionNet(tiny_config, frames.camera_ids, 3, 4, scale, components).eval()
+    with torch.no_grad():
+        model.fusion.expand.weight.zero_()
+        bias = torch.zeros(3, 4, len(components))
+        if "fz" in components:
+            bias[..., components.index("fz")] = fz_n / 0.05
+        model.fusion.expand.bias.copy_(bias.reshape(-1))
+    return model
+
+
+def at_rest(frames):
+    """The frames with no force at all (as the scenes' rest frames)."""
+    return replace(frames, bin_forces_n=np.zeros_like(frames.bin_forces_n))
+
+
+def test_the_fz_threshold_is_the_smallest_candidate_that_removes_a_spurious_force(tiny_config, frames):
+    model = constant_fz_model(tiny_config, frames, 0.0038)
+    report = fit_fz_threshold(model, at_rest(frames))
+    # Candidates are 0.01 x the Fz scale (0.5 mN) apart: 3.8 mN of spurious Fz everywhere needs 8 steps of them.
+    assert model.fz_threshold_n == pytest.approx(0.004) and report["fz_threshold_n"] == model.fz_threshold_n
+    assert report["val_rmse_bin_fz_n"]["none"] == pytest.approx(0.0038)
+    assert report["val_rmse_bin_fz_n"]["0.0035"] == pytest.approx(0.0003)
+    assert report["val_rmse_bin_fz_n"]["0.004"] == 0.0 and report["val_rmse_total_fz_n"]["0.004"] == 0.0
+    assert report["val_rmse_total_fz_n"]["none"] == pytest.approx(12 * 0.0038)
+    assert np.all(predict_torch(model, frames)[..., 2] == 0.0)
+
+
+def test_no_fz_threshold_when_none_beats_the_model_as_it_is(tiny_config, frames):
+    """An exact model keeps no threshold (a tie goes to none); so does a model that does not estimate Fz."""
+    model = constant_fz_model(tiny_config, frames, 0.0)
+    model.fz_threshold_n = 0.01
+    assert fit_fz_threshold(model, at_rest(frames))["fz_threshold_n"] is None and model.fz_threshold_n is None
+    no_fz = constant_fz_model(tiny_config, frames, 0.0, ("fx", "fy"))
+    assert fit_fz_threshold(no_fz, frames) == {"fz_threshold_n": None, "val_rmse_bin_fz_n": {},
+                                               "val_rmse_total_fz_n": {}}
