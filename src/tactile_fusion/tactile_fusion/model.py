@@ -302,10 +302,9 @@ def checked_threshold(fz_threshold_n) -> float | None:
     """None, or the Fz soft threshold as a finite float >= 0 (ValueError otherwise)."""
     if fz_threshold_n is None:
         return None
-    try:
-        value = float(fz_threshold_n)
-    except (TypeError, ValueError):
-        value = float("nan")
+    # A bool or a string is a mistake in model.json, not a number of newtons (float(True) would be 1 N).
+    value = float(fz_threshold_n) if isinstance(fz_threshold_n, (int, float)) and \
+        not isinstance(fz_threshold_n, bool) else float("nan")
     if not (np.isfinite(value) and value >= 0.0):
         raise ValueError(f"fz_threshold_n must be None or a finite number >= 0 (newtons), got {fz_threshold_n!r}")
     return value

@@ -36,7 +36,8 @@ def add_camera(base: ForceFusionNet, camera_ids: tuple[str, ...]) -> ForceFusion
     if missing or len(camera_ids) <= base.n_cameras:
         raise ValueError(f"add_camera: camera_ids {list(camera_ids)} must contain the base model's cameras "
                          f"{list(base.camera_ids)} and at least one more")
-    model = ForceFusionNet(base.config, camera_ids, base.rows, base.cols, base.force_scale_n, base.components)
+    model = ForceFusionNet(base.config, camera_ids, base.rows, base.cols, base.force_scale_n, base.components,
+                           base.fz_threshold_n)
     model.cnn.load_state_dict(base.cnn.state_dict())
     for module in (model.cnn.trunk, model.cnn.first_layer):
         module.requires_grad_(False)

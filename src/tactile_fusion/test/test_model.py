@@ -133,7 +133,7 @@ def test_the_fz_threshold_zeroes_fz_below_it_shifts_fz_above_it_and_leaves_fx_fy
     assert out.dtype == torch.float32 and thresholded.to_newtons(normalised.half()).dtype == torch.float32
 
 
-@pytest.mark.parametrize("threshold", [-0.001, float("nan"), float("inf"), "high"])
+@pytest.mark.parametrize("threshold", [-0.001, float("nan"), float("inf"), "high", "0.002", True])
 def test_a_bad_fz_threshold_is_rejected(tiny_config, threshold):
     with pytest.raises(ValueError, match="fz_threshold_n must be None or a finite number >= 0"):
         ForceFusionNet(tiny_config, ("a",), 1, 4, fz_threshold_n=threshold)

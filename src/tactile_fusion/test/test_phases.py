@@ -1,19 +1,24 @@
 """The training phases after end-to-end: head on cached features, least-squares fusion fit, recalibration."""
 
 import copy
+import json
 from dataclasses import fields, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from tactile_description import load_sensor
 from tactile_fusion import sources
+from tactile_fusion.artifacts import MODEL_JSON, TRAINING_JSON
 from tactile_fusion.data import split_indices
 from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.fz_threshold import fit_fz_threshold
+from tactile_fusion.inference import load_predictor
 from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.model import ForceFusionNet, force_scale_from_targets
-from tactile_fusion.pipeline import train_model
+from tactile_fusion.pipeline import train_and_export, train_model
 from tactile_fusion.recalibration import add_camera, fraction_subset, recalibrate
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 from tactile_fusion.training import (
@@ -537,6 +542,10 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
     fz_grown = add_camera(fz_base, ("left", "right"))
     assert fz_grown.components == ("fz",)
     np.testing.assert_allclose(predict_torch(fz_grown, frames), predict_torch(fz_base, base_frames), atol=1e-6)
+    fz_base.fz_threshold_n = float(np.median(predict_torch(fz_base, base_frames)[..., 2]))  # acts on half the bins
+    thresholded = add_camera(fz_base, ("left", "right"))
+    assert thresholded.fz_threshold_n == fz_base.fz_threshold_n
+    np.testing.assert_allclose(predict_torch(thresholded, frames), predict_torch(fz_base, base_frames), atol=1e-6)
     trainable = {name for name, p in grown.named_parameters() if p.requires_grad}
     assert trainable and all(n.startswith(("cnn.last_layer", "fusion")) for n in trainable)
 
@@ -629,3 +638,26 @@ def test_no_fz_threshold_when_none_beats_the_model_as_it_is(tiny_config, frames)
     no_fz = constant_fz_model(tiny_config, frames, 0.0, ("fx", "fy"))
     assert fit_fz_threshold(no_fz, frames) == {"fz_threshold_n": None, "val_rmse_bin_fz_n": {},
                                                "val_rmse_total_fz_n": {}}
+
+
+def test_train_and_export_writes_the_chosen_fz_threshold_into_model_json_and_every_graph(tmp_path, make_frames,
+                                                                                        tiny_config):
+    frames = make_frames(60, seed=5)
+    split = split_indices(len(frames), seed=3)
+    parts = {name: frames.subset(split[name]) for name in ("train", "val", "test")}
+    sensor = load_sensor(Path(__file__).resolve().parents[3] / "config" / "sensor.yaml")  # no draws: only its name
+    config = TrainConfig(max_epochs=2, batch_size=8, head_epochs=2, head_batch_size=8, head_cycles=1)
+    metrics = train_and_export(sensor, parts, tiny_config, config, tmp_path, progress=False, threads=1,
+                               data_source="synthetic")
+    chosen = json.loads((tmp_path / TRAINING_JSON).read_text())["phases"]["fz_threshold"]
+    threshold = json.loads((tmp_path / MODEL_JSON).read_text())["fz_threshold_n"]
+    # A model this briefly trained answers every frame with spurious forces: a threshold beats none.
+    assert threshold is not None and threshold > 0 and chosen["fz_threshold_n"] == threshold
+    assert min(chosen["val_rmse_bin_fz_n"].values()) < chosen["val_rmse_bin_fz_n"]["none"]
+    # The graphs were exported with it: ONNX Runtime equals torch, and no graph outputs a negative Fz.
+    assert metrics["backends"]["onnxruntime_fp32"]["max_abs_deviation_from_torch_fp32_n"] < 1e-5
+    for precision in ("fp32", "fp16", "int8"):
+        predictor = load_predictor(tmp_path, "onnxruntime", precision)
+        assert predictor.fz_threshold_n == threshold
+        fz = predictor.predict_batch(np.asarray(parts["test"].images), parts["test"].reference)[..., 2]
+        assert fz.min() == 0.0, precision
