@@ -5,7 +5,7 @@
                         [--scene NAME | --dataset DIR] [--hard-cases] [--out DIR] [--json]
     tactile-fusion recalibrate --out DIR [--add-camera ID] [--fractions 0.1,0.2,...]
                                [--recalibration-epochs N] [training options]
-    tactile-fusion export [--model DIR] [--measure]
+    tactile-fusion export [--model DIR] [--fit-threshold] [--measure]
     tactile-fusion bench [--model DIR] [--runs N] [--json]
 
 Without --model, eval, export and bench use the shipped model (models/default); without --scene or --dataset,
@@ -203,12 +203,18 @@ def cmd_recalibrate(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from tactile_fusion.pipeline import export_model_dir, held_out_test_split, measure_model_dir
+    from tactile_fusion.pipeline import export_model_dir, fit_threshold_of_model_dir, held_out_split, measure_model_dir
 
+    _threads(args)
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
-    # With --measure, training data that cannot be read is refused before any graph is rewritten.
-    test_split = held_out_test_split(model_dir, sensor) if args.measure else None
+    # Training data that cannot be read is refused before anything in the directory is rewritten.
+    test_split = held_out_split(model_dir, sensor, "test") if args.measure else None
+    if args.fit_threshold:
+        val, source, note = held_out_split(model_dir, sensor, "val")
+        threshold = fit_threshold_of_model_dir(model_dir, sensor, val)["fz_threshold_n"]
+        chosen = "none (no candidate beats none)" if threshold is None else f"{1e3 * threshold:.3g} mN"
+        print(f"Fz threshold chosen on the validation split of {source}{note}: {chosen}")
     for precision, path in export_model_dir(model_dir, sensor).items():
         print(f"{precision}: {path}")
     if test_split is not None:
@@ -345,6 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="write the ONNX graphs (fp32, fp16, int8) of a model directory")
     common(p, True)
+    p.add_argument("--fit-threshold", action="store_true", help="first choose the model's Fz threshold on the "
+                   "validation split of its training data, as train does (for models trained before it had one)")
     p.add_argument("--measure", action="store_true", help="then measure every backend and precision on the test "
                    "split of the model's training data and rewrite metrics.json")
     p.set_defaults(func=cmd_export)

@@ -22,6 +22,7 @@ from tactile_fusion.artifacts import (
     check_model_fits,
     file_sha256,
     load_model,
+    read_model_json,
     save_model,
     write_json,
 )
@@ -187,7 +188,7 @@ def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, threa
 
 def measure_model_dir(model_dir: str | Path, test_split: tuple[FrameSet, str, str], threads: int | None
                       ) -> tuple[dict, str]:
-    """Measure every backend and precision of a model directory again on `test_split` (`held_out_test_split`: the
+    """Measure every backend and precision of a model directory again on `test_split` (`held_out_split`: the
     test split of its training data) and rewrite metrics.json (after an export changed the graphs, their figures
     are stale). Returns the metrics and what they were measured on."""
     model_dir = Path(model_dir)
@@ -206,9 +207,27 @@ def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> dict:
     return export_all(model, model_dir)
 
 
-def held_out_test_split(model_dir: Path, sensor: SensorDescription) -> tuple[FrameSet, str, str]:
-    """The test split of the data a model was trained on, that data ("scene NAME" or "dataset PATH", as
-    training.json says) and a note on where it came from ("" or why the default scene).
+def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription, val: FrameSet) -> dict:
+    """Choose the Fz threshold of a trained model directory on `val` (`held_out_split`: the validation split of its
+    training data) as `tactile-fusion train` does, and write it into model.json and training.json's record; the ONNX
+    graphs are stale until re-exported (`export_model_dir`). For models trained before models had a threshold.
+    Returns fit_fz_threshold's report."""
+    model_dir = Path(model_dir)
+    model = load_model(model_dir)
+    check_model_fits(model, sensor)
+    report = fit_fz_threshold(model, val.select_cameras(model.camera_ids))
+    save_model(model, model_dir, read_model_json(model_dir).get("sensor_name", sensor.name))
+    record = model_dir / TRAINING_JSON
+    if record.exists():
+        training = json.loads(record.read_text())
+        training.setdefault("phases", {})["fz_threshold"] = report
+        write_json(record, training)
+    return report
+
+
+def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "test") -> tuple[FrameSet, str, str]:
+    """The `split` ("test" or "val") of the data a model was trained on, that data ("scene NAME" or "dataset PATH",
+    as training.json says) and a note on where it came from ("" or why the default scene).
 
     The split `train_and_export` made of the data that training.json names (a scene, or a dataset). A model
     directory without training.json gets the default scene's split (and says so); one whose training data cannot be
@@ -227,7 +246,7 @@ def held_out_test_split(model_dir: Path, sensor: SensorDescription) -> tuple[Fra
         source = load_dataset_frames(name, sensor) if kind == "dataset" else load_scene(name, sensor)
     except (OSError, SceneError, DatasetError, DatasetMismatchError) as exc:
         raise ModelFileError(f"{record} says the model was trained on {kind} {name}, which cannot be read here "
-                             f"({exc}); the figures are measured on its test split") from exc
-    picks = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)["test"]
+                             f"({exc}); its {split} split is needed") from exc
+    picks = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)[split]
     frames = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks)
     return frames, f"{kind} {name}", note

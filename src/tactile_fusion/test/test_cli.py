@@ -143,6 +143,34 @@ def test_export_measure_records_the_figures_of_changed_graphs(tiny_model, tmp_pa
         after["backends"]["onnxruntime_int8"]["rmse_bin_n"][2]
 
 
+def test_export_fit_threshold_gives_a_model_without_one_the_threshold_train_chose(tmp_path):
+    """A model trained on presses, its threshold taken away as in a model.json from before thresholds: export
+    --fit-threshold chooses the same threshold again (the same network and validation split), writes it into
+    model.json and training.json, and the re-exported, re-measured graphs apply it."""
+    out = tmp_path / "model"
+    run("train", "--scene", "edge_corner", "--frames", "60", "--epochs", "1", "--head-epochs", "1", "--head-cycles",
+        "1", "--threads", "1", "--out", str(out), *TINY)
+    trained = json.loads((out / MODEL_JSON).read_text())["fz_threshold_n"]
+    assert trained is not None  # a briefly trained model answers presses with spurious forces everywhere
+    description = json.loads((out / MODEL_JSON).read_text())
+    del description["fz_threshold_n"]
+    (out / MODEL_JSON).write_text(json.dumps(description))
+    training = json.loads((out / TRAINING_JSON).read_text())
+    del training["phases"]["fz_threshold"]
+    (out / TRAINING_JSON).write_text(json.dumps(training))
+    run("export", "--model", str(out), "--measure", "--quiet")
+    assert json.loads((out / METRICS_JSON).read_text())["rmse_bin_n"][2] > 0
+
+    result = run("export", "--model", str(out), "--fit-threshold", "--measure", "--threads", "1", "--quiet")
+    assert f"Fz threshold chosen on the validation split of scene edge_corner: {1e3 * trained:.3g} mN" in result.stdout
+    assert json.loads((out / MODEL_JSON).read_text())["fz_threshold_n"] == trained
+    assert json.loads((out / TRAINING_JSON).read_text())["phases"]["fz_threshold"]["fz_threshold_n"] == trained
+    measured = json.loads((out / METRICS_JSON).read_text())["backends"]
+    assert measured["onnxruntime_fp32"]["max_abs_deviation_from_torch_fp32_n"] < 1e-5
+    for precision, name in ONNX_FILES.items():
+        assert measured[f"onnxruntime_{precision}"]["model_file_sha256"] == file_sha256(out / name), precision
+
+
 def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
     """A re-export writes byte for byte the graphs whose figures metrics.json holds (it needs no data: int8 is
     quantized dynamically)."""
