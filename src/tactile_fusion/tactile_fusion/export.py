@@ -5,13 +5,15 @@ Every graph has the same interface as the model's `forward`:
   reference (C, H, W)    uint8   the cameras' no-contact frames
   bin_forces_n (B, rows, cols, 3) float32 newtons
 The uint8 -> float conversion and the difference are inside the graph, so no caller can get the wrap-around
-of uint8 differences wrong.
+of uint8 differences wrong. Each graph also names, in its metadata, the Fz threshold it applies
+(THRESHOLD_METADATA), so that a graph and a model.json of two different models are told apart on loading.
 """
 
 from __future__ import annotations
 
 import copy
 import io
+import json
 import warnings
 from pathlib import Path
 
@@ -25,6 +27,8 @@ from tactile_fusion.model import ForceFusionNet, difference_images
 OPSET = 17
 INPUT_NAMES = ("images", "reference")
 OUTPUT_NAME = "bin_forces_n"
+#: Metadata key of the Fz threshold a graph applies (JSON: a number of newtons, or null for none).
+THRESHOLD_METADATA = "fz_threshold_n"
 
 
 class _Float16Graph(nn.Module):
@@ -58,10 +62,19 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
     example = (torch.zeros(1, c, size, size, dtype=torch.uint8), torch.zeros(c, size, size, dtype=torch.uint8))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(onnx_bytes(graph, example, OUTPUT_NAME))
-    proto = onnx.load(str(path))
-    onnx.checker.check_model(proto, full_check=True)
+    proto = onnx.load_from_string(onnx_bytes(graph, example, OUTPUT_NAME))
+    onnx.helper.set_model_props(proto, {THRESHOLD_METADATA: json.dumps(model.fz_threshold_n)})
+    onnx.save(proto, str(path))
+    onnx.checker.check_model(onnx.load(str(path)), full_check=True)
     return path
+
+
+def graph_threshold(metadata: dict[str, str]) -> tuple[bool, float | None]:
+    """(whether the graph names its Fz threshold, the threshold) from a graph's metadata; graphs exported before the
+    threshold existed name none."""
+    if THRESHOLD_METADATA not in metadata:
+        return False, None
+    return True, json.loads(metadata[THRESHOLD_METADATA])
 
 
 def onnx_bytes(graph: nn.Module, example: tuple[torch.Tensor, torch.Tensor], output_name: str) -> bytes:
@@ -117,6 +130,9 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
         int8_path.unlink()
         raise RuntimeError(f"quantize_int8: ONNX Runtime quantized the fusion layer of {fp32_path} (did the names "
                            "of its nodes change?); it must stay in float")
+    metadata = {p.key: p.value for p in onnx.load(str(fp32_path), load_external_data=False).metadata_props}
+    onnx.helper.set_model_props(proto, metadata)  # the float graph's, the Fz threshold's included
+    onnx.save(proto, str(int8_path))
     return int8_path
 
 

@@ -27,7 +27,7 @@ from tactile_fusion.artifacts import (
     model_threshold,
     read_model_json,
 )
-from tactile_fusion.export import copy_to_half
+from tactile_fusion.export import copy_to_half, graph_threshold
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 BACKENDS = {"onnxruntime": ("fp32", "int8", "fp16"), "torch": ("fp32", "fp16")}
@@ -161,6 +161,11 @@ class OnnxRuntimePredictor(ForcePredictor):
         super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision,
                          model_components(description), model_threshold(description))
         self.session = onnx_session(onnx_path, threads)
+        named, applied = graph_threshold(self.session.get_modelmeta().custom_metadata_map)
+        if named and applied != self.fz_threshold_n:
+            raise ModelFileError(f"{onnx_path} applies the Fz threshold {applied} N, its model.json says "
+                                 f"{self.fz_threshold_n}: files of two models are mixed; re-export the graphs "
+                                 "(tactile-fusion export --model DIR)")
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]

@@ -207,6 +207,30 @@ def test_a_model_with_an_fz_threshold_applies_it_in_every_backend_and_precision(
         np.testing.assert_allclose(predicted, expected, rtol=0, atol=1e-6, err_msg=f"{backend} {precision}")
 
 
+def test_a_graph_and_a_model_json_of_different_thresholds_are_refused_on_loading(model_dir, tmp_path):
+    out, _ = model_dir
+    model = load_model(out)
+    model.fz_threshold_n = 0.002
+    save_model(model, tmp_path, "synthetic")
+    export_onnx(model, tmp_path / ONNX_FILES["fp32"])
+    export_onnx(model, tmp_path / ONNX_FILES["fp16"], "fp16")
+    quantize_int8(tmp_path / ONNX_FILES["fp32"], tmp_path / ONNX_FILES["int8"])
+    for name in ONNX_FILES.values():  # every graph names the threshold it applies
+        assert {p.key: p.value for p in onnx.load(str(tmp_path / name)).metadata_props} == {"fz_threshold_n": "0.002"}
+    description = json.loads((tmp_path / MODEL_JSON).read_text())
+    for other in (0.003, None):  # model.json of another model (or of one without a threshold)
+        (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "fz_threshold_n": other}))
+        for precision in ONNX_FILES:
+            with pytest.raises(ModelFileError, match="applies the Fz threshold 0.002 N, its model.json says "
+                                                     f"{other}: files of two models are mixed"):
+                load_predictor(tmp_path, "onnxruntime", precision)
+    # A graph exported before graphs named their threshold is taken as model.json says.
+    proto = onnx.load(str(tmp_path / ONNX_FILES["fp32"]))
+    del proto.metadata_props[:]
+    onnx.save(proto, str(tmp_path / ONNX_FILES["fp32"]))
+    assert load_predictor(tmp_path, "onnxruntime").fz_threshold_n is None
+
+
 def test_a_model_json_without_an_fz_threshold_has_none_and_a_bad_one_is_refused(model_dir, tmp_path):
     out, _ = model_dir
     save_model(load_model(out), tmp_path)
