@@ -64,8 +64,8 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
     path.parent.mkdir(parents=True, exist_ok=True)
     proto = onnx.load_from_string(onnx_bytes(graph, example, OUTPUT_NAME))
     onnx.helper.set_model_props(proto, {THRESHOLD_METADATA: json.dumps(model.fz_threshold_n)})
+    onnx.checker.check_model(proto, full_check=True)
     onnx.save(proto, str(path))
-    onnx.checker.check_model(onnx.load(str(path)), full_check=True)
     return path
 
 

@@ -12,6 +12,7 @@ from tactile_fusion.artifacts import MODEL_JSON, ONNX_FILES, ModelFileError, che
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
 from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig
+from tactile_fusion.pipeline import export_all
 from tactile_fusion.sources import ImageSource
 from tactile_fusion.training import TrainConfig, build_model, fit
 
@@ -31,9 +32,7 @@ def model_dir(tmp_path_factory, make_frames, request):
         TrainConfig(max_epochs=3, batch_size=4, learning_rate=1e-2))
     out = tmp_path_factory.mktemp("model")
     save_model(model, out, "synthetic")
-    export_onnx(model, out / ONNX_FILES["fp32"])
-    export_onnx(model, out / ONNX_FILES["fp16"], "fp16")
-    quantize_int8(out / ONNX_FILES["fp32"], out / ONNX_FILES["int8"])
+    export_all(model, out)
     return out, frames
 
 
@@ -166,9 +165,7 @@ def test_a_model_of_fz_alone_exports_and_runs_in_every_backend_and_precision(mod
     model = load_model(out)
     fz = fz_only_copy(model)
     save_model(fz, tmp_path, "synthetic")
-    export_onnx(fz, tmp_path / ONNX_FILES["fp32"])
-    export_onnx(fz, tmp_path / ONNX_FILES["fp16"], "fp16")
-    quantize_int8(tmp_path / ONNX_FILES["fp32"], tmp_path / ONNX_FILES["int8"])
+    export_all(fz, tmp_path)
     assert json.loads((tmp_path / MODEL_JSON).read_text())["components"] == ["fz"]
     assert load_model(tmp_path).components == ("fz",)
     full = load_predictor(out, "torch").predict_batch(frames.images, frames.reference)
@@ -189,9 +186,7 @@ def test_a_model_with_an_fz_threshold_applies_it_in_every_backend_and_precision(
     model = load_model(out)
     model.fz_threshold_n = float(np.median(np.abs(plain[..., 2])))  # acts on about half of the bins
     save_model(model, tmp_path, "synthetic")
-    export_onnx(model, tmp_path / ONNX_FILES["fp32"])
-    export_onnx(model, tmp_path / ONNX_FILES["fp16"], "fp16")
-    quantize_int8(tmp_path / ONNX_FILES["fp32"], tmp_path / ONNX_FILES["int8"])  # refuses a quantized fusion layer
+    export_all(model, tmp_path)  # refuses a quantized fusion layer
     assert json.loads((tmp_path / MODEL_JSON).read_text())["fz_threshold_n"] == model.fz_threshold_n
     assert load_model(tmp_path).fz_threshold_n == model.fz_threshold_n
     for backend, precision in (("torch", "fp32"), ("torch", "fp16"), ("onnxruntime", "fp32"),
@@ -212,9 +207,7 @@ def test_a_graph_and_a_model_json_of_different_thresholds_are_refused_on_loading
     model = load_model(out)
     model.fz_threshold_n = 0.002
     save_model(model, tmp_path, "synthetic")
-    export_onnx(model, tmp_path / ONNX_FILES["fp32"])
-    export_onnx(model, tmp_path / ONNX_FILES["fp16"], "fp16")
-    quantize_int8(tmp_path / ONNX_FILES["fp32"], tmp_path / ONNX_FILES["int8"])
+    export_all(model, tmp_path)
     for name in ONNX_FILES.values():  # every graph names the threshold it applies
         assert {p.key: p.value for p in onnx.load(str(tmp_path / name)).metadata_props} == {"fz_threshold_n": "0.002"}
     description = json.loads((tmp_path / MODEL_JSON).read_text())
