@@ -155,10 +155,25 @@ class ApproximateTimeSync(Generic[Item]):
                 best_possible = min(best_possible, spread)
                 if known and spread < best:
                     best, best_picks = spread, picks
-            if best == float("inf") or best_possible < best:
+            if best == float("inf") or best_possible < best or self._could_tie(options, best_picks, pivot_stamp):
                 return None
         best_picks[pivot_stream] = 0
         return best, best_picks
+
+    def _could_tie(self, options: dict, picks: dict[str, int], pivot_stamp: float) -> bool:
+        """Whether a message still to come could replace a pick at the same spread.
+
+        A stream that gives the bundle its last message so far, stamped before the pivot, may still send one
+        stamped between that and the pivot: the bundle with it is no wider (often it is the same bundle's spread),
+        and, had it arrived first, the tightest bundle would hold it. Emitting now would let the arrival order
+        choose between the two; so the bundle waits for the stream's next message, unless `min_period_s` rules out
+        one stamped at or before the pivot (with the nodes' default of half a frame period it nearly always does).
+        """
+        for s, (before, _, after, _) in options.items():
+            last = self._last_stamp[s]
+            if picks[s] == before and after is None and last < pivot_stamp and last + self.min_period_s <= pivot_stamp:
+                return True
+        return False
 
     def _take(self, picks: dict[str, int]) -> Bundle[Item]:
         stamps, items = [], []

@@ -2,7 +2,7 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from tactile_fusion.approximate_sync import ApproximateTimeSync
@@ -59,6 +59,7 @@ def test_free_running_cameras_are_matched_frame_by_frame():
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 10_000))
+@example(seed=2458)  # a camera's next frame, stamped before the pivot, ties the bundle's spread (found 2026-11-24)
 def test_output_depends_only_on_timestamps_not_on_arrival_order(seed):
     streams = camera_streams(40, jitter_s=0.008, seed=seed)
     results = []
