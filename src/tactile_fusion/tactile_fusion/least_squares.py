@@ -31,21 +31,22 @@ RIDGES = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 
 
 
 @torch.no_grad()
-def camera_features(model: ForceFusionNet, source, batch_size: int = 256
+def camera_features(model: ForceFusionNet, source, batch_size: int = 256, dtype: torch.dtype = torch.float64
                     ) -> tuple[torch.Tensor, torch.Tensor, float]:
-    """(features (N, C * camera_features) float64, targets (N, rows * cols * K) float64 of the K components the
-    model estimates, sum of the squared targets of the others) of a CachedSource or ImageSource, evaluation mode (no
-    dropout, batch-norm running statistics)."""
+    """(features (N, C * camera_features), targets (N, rows * cols * K) of the K components the model estimates, both
+    of `dtype`, sum of the squared targets of the others) of a CachedSource or ImageSource, evaluation mode (no
+    dropout, batch-norm running statistics). The model computes both in float32, so float32 loses nothing; float64
+    is for the sums of the fit."""
     model.eval()
     estimated = model.component_indices
     others = [FORCE_COMPONENTS.index(c) for c in left_out_components(model.components)]
     features, targets, unestimated = [], [], 0.0
     for start in range(0, len(source), batch_size):
         idx = np.arange(start, min(start + batch_size, len(source)))
-        features.append(source.features_at(model, idx).reshape(len(idx), -1).double())
-        target = source.target(idx).double()
-        targets.append(target[..., estimated].reshape(len(idx), -1))
-        unestimated += float(torch.sum(target[..., others] ** 2))
+        features.append(source.features_at(model, idx).reshape(len(idx), -1).to(dtype))
+        target = source.target(idx)
+        targets.append(target[..., estimated].reshape(len(idx), -1).to(dtype))
+        unestimated += float(torch.sum(target[..., others].double() ** 2))
     return torch.cat(features), torch.cat(targets), unestimated
 
 
@@ -81,6 +82,61 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
         _assign(model, *solutions[best])
     return {"ridge": best if scores[best] < before else None, "val_rmse": {str(k): v for k, v in scores.items()},
             "val_rmse_before": before, "val_rmse_after": min(scores[best], before)}
+
+
+@torch.no_grad()
+def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float, iterations: int) -> None:
+    """Refit the dense fusion layer of a model with an Fz threshold t for the error of its thresholded output.
+
+    The model reports max(Fz - t, 0), but `fit_fusion` fits Fz itself: it spends weights on pulling the bins without
+    force to exactly 0 although anything below t comes out as 0 anyway, and it leaves the loaded bins t short. The
+    squared error of the thresholded output is, per bin, (Fz - t - y)^2 where force was applied (y > 0) while Fz > t,
+    y^2 while Fz <= t, and max(Fz - t, 0)^2 where none was. Each iteration replaces this by the least-squares
+    problem that touches it from above at the current weights (majorisation-minimisation, Lange, Hunter & Yang
+    2000): the targets become y + t on loaded bins and min(Fz, t) on the others, and the ridge solution for those
+    targets never raises the thresholded error. Every iteration solves with the same matrix (one Cholesky factor),
+    so it costs two products of the features with the weights. Fx and Fy keep their plain targets.
+
+    The features are kept in float32 and taken to float64 a chunk of frames at a time: for the default scene's 78540
+    frames a float64 copy of them, their targets and the fitted values would add about 3 GB to training's peak.
+    """
+    if model.fz_threshold_n is None or "fz" not in model.components:
+        raise ValueError("fit_fusion_under_threshold: the model has no Fz threshold to fit for")
+    if model.fusion.reduce is not None:
+        raise ValueError("fit_fusion_under_threshold: only a dense fusion layer (no --fusion-rank) can be refitted")
+    x, y, _ = camera_features(model, train_source, dtype=torch.float32)
+    chunks = [slice(start, start + REFIT_CHUNK_FRAMES) for start in range(0, len(x), REFIT_CHUNK_FRAMES)]
+    gram = torch.zeros(x.shape[1] + 1, x.shape[1] + 1, dtype=torch.float64)
+    for rows in chunks:
+        design = _design(x[rows])
+        gram += design.T @ design
+    penalty = torch.eye(len(gram), dtype=gram.dtype)
+    penalty[-1, -1] = 0.0  # the bias is not shrunk
+    factor = torch.linalg.cholesky(gram + ridge * len(x) * penalty)
+    fusion = model.fusion.expand
+    weights = torch.cat([fusion.weight.T, fusion.bias[None]]).double()               # (F + 1, O)
+    fz = torch.zeros(len(model.components), dtype=torch.bool)
+    fz[model.components.index("fz")] = True
+    fz = fz.repeat(y.shape[1] // len(model.components))                            # output columns of Fz
+    threshold = torch.tensor(model.fz_threshold_n / float(model.force_scale_n[FORCE_COMPONENTS.index("fz")]),
+                             dtype=gram.dtype)
+    for _ in range(iterations):
+        rhs = torch.zeros_like(weights)
+        for rows in chunks:
+            design, target = _design(x[rows]), y[rows].double()
+            below = torch.minimum(design @ weights, threshold)
+            rhs += design.T @ torch.where(fz & (target > 0), target + threshold, torch.where(fz, below, target))
+        weights = torch.cholesky_solve(rhs, factor)
+    _assign(model, weights, None)
+
+
+#: Frames per chunk of the refit's float64 products (about 40 MB of features each for the reference sensor).
+REFIT_CHUNK_FRAMES = 4096
+
+
+def _design(features: torch.Tensor) -> torch.Tensor:
+    """(N, F) features -> (N, F + 1) float64 with a column of ones for the bias."""
+    return torch.cat([features.double(), torch.ones(len(features), 1, dtype=torch.float64)], dim=1)
 
 
 def _reduce_rank(weights: torch.Tensor, x: torch.Tensor, y: torch.Tensor, rank: int

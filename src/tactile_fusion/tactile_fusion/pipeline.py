@@ -100,16 +100,16 @@ def further_draws(sensor: SensorDescription, scene_name: str | None, dataset: st
 
 
 def train_model(train: FrameSet, val: FrameSet, model_config: ModelConfig, train_config: TrainConfig,
-                checkpoint_dir: Path | None, resume: bool, progress: bool, head_extra: Iterable[FrameSet] = ()
-                ) -> tuple[ForceFusionNet, dict]:
-    """Train on `train` with early stopping on `val`, the head also on `head_extra` (`further_draws`); returns the
-    model and the training results of each phase."""
+                checkpoint_dir: Path | None, resume: bool, progress: bool, head_extra: Iterable[FrameSet] = (),
+                fz_threshold: bool = False) -> tuple[ForceFusionNet, dict]:
+    """Train on `train` with early stopping on `val`, the head also on `head_extra` (`further_draws`), ending with the
+    Fz threshold if `fz_threshold` (train_phases); returns the model and the training results of each phase."""
     scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
     rows, cols = train.bin_forces_n.shape[1:3]
     model = build_model(model_config, train.camera_ids, rows, cols, scale, train_config.seed,
                         estimated_components(train.bin_forces_n))
     return model, train_phases(model, train, val, train_config, checkpoint_dir, resume, progress,
-                               head_extra=head_extra)
+                               head_extra=head_extra, fz_threshold=fz_threshold)
 
 
 def export_all(model: ForceFusionNet, out_dir: Path) -> dict:
@@ -150,8 +150,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     started = time.perf_counter()
     head_extra = head_extra if head_extra is not None else SceneDraws.none(sensor)
     model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
-                                 progress, head_extra)
-    results["fz_threshold"] = fit_fz_threshold(model, splits["val"])
+                                 progress, head_extra, fz_threshold=True)
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
     export_all(model, out_dir)

@@ -24,7 +24,8 @@ from tqdm import tqdm
 
 from tactile_description import FORCE_COMPONENTS
 from tactile_fusion.data import FrameSet
-from tactile_fusion.least_squares import fit_fusion
+from tactile_fusion.fz_threshold import fit_threshold_and_fusion
+from tactile_fusion.least_squares import RIDGES, fit_fusion
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 
@@ -337,9 +338,12 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
 
 def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: TrainConfig,
                  checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool = False,
-                 on_epoch_end: Callable[[int, dict], None] | None = None, head_extra: Iterable[FrameSet] = ()) -> dict:
+                 on_epoch_end: Callable[[int, dict], None] | None = None, head_extra: Iterable[FrameSet] = (),
+                 fz_threshold: bool = False) -> dict:
     """End-to-end training; then (if config.head_epochs) the head alone on cached conv-trunk features; then the
-    least-squares fit of the fusion layer.
+    least-squares fit of the fusion layer; then, with `fz_threshold`, the Fz threshold and the fusion layer refitted
+    for it (fz_threshold.fit_threshold_and_fusion; `tactile-fusion train` does this, the recalibration study compares
+    its networks without).
 
     Why phases: an end-to-end step spends almost all its time in the convolutions at full resolution, while
     the head (fully connected layers and fusion) needs many more epochs than the conv filters to converge; with the
@@ -365,7 +369,8 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     2.47 / 64 without (docs/learning.md).
 
     Returns {"end_to_end": TrainResult, "head": TrainResult (when it ran), "fusion_fit": least-squares report with
-    "cycle_kept", and "head_2", "fusion_fit_2", ... for further cycles}.
+    "cycle_kept", and "head_2", "fusion_fit_2", ... for further cycles; with `fz_threshold` also "fz_threshold" and
+    "fusion_refit"}.
     """
     checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
     scale = model.force_scale_n
@@ -379,7 +384,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     head_data = data  # a head checkpoint is resumed only on the same extra frames as well
     if data is not None and cached_train.extra_frames:
         head_data = data_identity(train, val, cached_train.targets[len(train):].numpy())
-    kept_val_rmse = results["end_to_end"].best_val_rmse
+    kept_val_rmse, kept_ridge = results["end_to_end"].best_val_rmse, RIDGES[0]
     for cycle in range(1, config.head_cycles + 1):
         suffix = "" if cycle == 1 else f"_{cycle}"
         if cycle > 1:
@@ -393,9 +398,12 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
         fitted["cycle_kept"] = fitted["val_rmse_after"] < kept_val_rmse
         if fitted["cycle_kept"]:
             kept_val_rmse = fitted["val_rmse_after"]
+            kept_ridge = fitted["ridge"] if fitted["ridge"] is not None else kept_ridge
         else:
             model.load_state_dict(before_cycle)
     model.eval()
+    if fz_threshold:
+        results.update(fit_threshold_and_fusion(model, cached_train.frames_only(), val, kept_ridge))
     return results
 
 

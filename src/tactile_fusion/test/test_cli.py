@@ -46,7 +46,7 @@ def test_train_writes_a_complete_model_directory(tiny_model):
                                               "seeds": [training["data"]["seed"] + 1], "frames": 60}
     cycles = [""] + [f"_{c}" for c in range(2, TrainConfig().head_cycles + 1)]  # the default head cycles
     assert set(training["phases"]) == {"end_to_end", *(f"{p}{c}" for c in cycles for p in ("head", "fusion_fit")),
-                                       "fz_threshold"}
+                                       "fz_threshold", "fusion_refit"}
     # The Fz threshold the last step chose on the validation split is the model's.
     threshold = training["phases"]["fz_threshold"]
     assert json.loads((out / MODEL_JSON).read_text())["fz_threshold_n"] == threshold["fz_threshold_n"]

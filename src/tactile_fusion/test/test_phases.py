@@ -10,13 +10,13 @@ import pytest
 import torch
 
 from tactile_description import load_sensor
-from tactile_fusion import sources
+from tactile_fusion import least_squares, sources
 from tactile_fusion.artifacts import MODEL_JSON, TRAINING_JSON
 from tactile_fusion.data import split_indices
 from tactile_fusion.evaluation import predict_torch
-from tactile_fusion.fz_threshold import fit_fz_threshold
+from tactile_fusion.fz_threshold import fit_fz_threshold, fit_threshold_and_fusion
 from tactile_fusion.inference import load_predictor
-from tactile_fusion.least_squares import fit_fusion
+from tactile_fusion.least_squares import fit_fusion, fit_fusion_under_threshold
 from tactile_fusion.model import ForceFusionNet, force_scale_from_targets
 from tactile_fusion.pipeline import train_and_export, train_model
 from tactile_fusion.recalibration import add_camera, fraction_subset, recalibrate
@@ -640,6 +640,115 @@ def test_no_fz_threshold_when_none_beats_the_model_as_it_is(tiny_config, frames)
                                                "val_rmse_total_fz_n": {}}
 
 
+def fitted_with_threshold(frames, tiny_config, threshold_n: float, ridge: float = 1e-9):
+    """(A model whose fusion layer is the plain least-squares fit on the training frames, with an Fz threshold
+    set; the training and validation frames; their cached sources)."""
+    model = model_for(frames, tiny_config).eval()
+    train, val = splits(frames)
+    cached = [CachedSource(model, part, "trunk") for part in (train, val)]
+    fit_fusion(model, *cached, ridges=(ridge,))
+    model.fz_threshold_n = threshold_n
+    return model, train, val, cached
+
+
+def thresholded_fz_sse(model, frames) -> float:
+    """Sum of squared errors of the model's (thresholded) Fz on `frames`, newtons squared."""
+    return float(np.sum((predict_torch(model, frames)[..., 2].astype(np.float64) - frames.bin_forces_n[..., 2]) ** 2))
+
+
+def test_the_fusion_refit_under_the_threshold_never_raises_its_error_and_leaves_fx_fy_as_fitted(frames, tiny_config):
+    """Majorisation-minimisation: each iteration's least-squares problem lies above the thresholded error and
+    touches it at the current weights, so the error of the thresholded output on the training frames cannot rise
+    from one iteration to the next; Fx and Fy are not thresholded, so their weights stay the plain fit's."""
+    start, train, _, (cached_train, _) = fitted_with_threshold(frames, tiny_config, threshold_n=0.01)
+    errors = []
+    for iterations in (0, 1, 2, 4, 8):
+        model = copy.deepcopy(start)
+        fit_fusion_under_threshold(model, cached_train, 1e-9, iterations)
+        errors.append(thresholded_fz_sse(model, train))
+    assert all(b <= a * (1 + 1e-5) for a, b in zip(errors, errors[1:], strict=False)), errors
+    assert errors[-1] < 0.9 * errors[0], errors  # and the plain fit is not the thresholded optimum
+    weights = model.fusion.expand.weight.reshape(3, 4, 3, -1)  # (rows, cols, components, features)
+    plain = start.fusion.expand.weight.reshape(3, 4, 3, -1)
+    torch.testing.assert_close(weights[:, :, :2], plain[:, :, :2], rtol=1e-4, atol=1e-5)
+    assert not torch.allclose(weights[:, :, 2], plain[:, :, 2], rtol=1e-4, atol=1e-5)
+
+
+def test_the_fusion_refit_finds_a_thresholded_linear_map_of_the_features_exactly(frames, tiny_config):
+    """Forces that are max(linear map of the model's own features - t, 0) for the model's t are reached exactly (the
+    loaded bins' targets are the forces plus t), where the plain least-squares fit is far off."""
+    model = model_for(frames, tiny_config).eval()
+    train, val = splits(frames)
+    teacher = model_for(frames, tiny_config, seed=1).eval()
+    teacher.cnn.load_state_dict(model.cnn.state_dict())
+    teacher.fz_threshold_n = float(np.quantile(predict_torch(teacher, train)[..., 2], 0.75))  # a quarter loaded
+    train.bin_forces_n[...] = predict_torch(teacher, train)
+    cached_train = CachedSource(model, train, "trunk")
+    fit_fusion(model, cached_train, CachedSource(model, val, "trunk"), ridges=(1e-9,))
+    model.fz_threshold_n = teacher.fz_threshold_n
+    plain = thresholded_fz_sse(model, train)
+    fit_fusion_under_threshold(model, cached_train, 1e-9, 5)
+    assert thresholded_fz_sse(model, train) < 1e-6 * plain
+
+
+def test_the_fusion_refit_in_chunks_of_frames_is_the_refit_in_one(frames, tiny_config, monkeypatch):
+    start, _, _, (cached_train, _) = fitted_with_threshold(frames, tiny_config, threshold_n=0.01)
+    whole, chunked = copy.deepcopy(start), copy.deepcopy(start)
+    fit_fusion_under_threshold(whole, cached_train, 1e-6, 3)
+    monkeypatch.setattr(least_squares, "REFIT_CHUNK_FRAMES", 5)  # 33 training frames: 7 chunks, the last of 3
+    fit_fusion_under_threshold(chunked, cached_train, 1e-6, 3)
+    torch.testing.assert_close(chunked.fusion.expand.weight, whole.fusion.expand.weight, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(chunked.fusion.expand.bias, whole.fusion.expand.bias, rtol=1e-5, atol=1e-6)
+    assert not torch.equal(whole.fusion.expand.weight, start.fusion.expand.weight)
+
+
+def test_the_fusion_refit_needs_a_threshold_and_a_dense_fusion_layer(frames, tiny_config):
+    model, _, _, (cached_train, _) = fitted_with_threshold(frames, tiny_config, threshold_n=0.01)
+    model.fz_threshold_n = None
+    with pytest.raises(ValueError, match="no Fz threshold"):
+        fit_fusion_under_threshold(model, cached_train, 1e-9, 2)
+    factored = model_for(frames, replace(tiny_config, fusion_rank=2))
+    factored.fz_threshold_n = 0.01
+    with pytest.raises(ValueError, match="only a dense fusion layer"):
+        fit_fusion_under_threshold(factored, cached_train, 1e-9, 2)
+
+
+def test_the_threshold_is_chosen_again_for_the_refitted_fusion_layer(frames, tiny_config):
+    model, train, val, (cached_train, _) = fitted_with_threshold(frames, tiny_config, threshold_n=None, ridge=1e-6)
+    plain = copy.deepcopy(model)
+    report = fit_threshold_and_fusion(model, cached_train, val, ridge=1e-6)
+    refit = report["fusion_refit"]
+    first = fit_fz_threshold(plain, val)
+    assert refit["kept"] and refit["threshold_before_n"] == first["fz_threshold_n"] is not None
+    assert refit["val_rmse_bin_fz_before_n"] == pytest.approx(min(first["val_rmse_bin_fz_n"].values()))
+    assert refit["val_rmse_bin_fz_after_n"] < refit["val_rmse_bin_fz_before_n"]
+    # The report that applies is the second choice, the model's threshold, and it measures the model as it is.
+    assert report["fz_threshold"]["fz_threshold_n"] == model.fz_threshold_n
+    fz_error = np.sqrt(np.mean((predict_torch(model, val)[..., 2] - val.bin_forces_n[..., 2]) ** 2))
+    assert fz_error == pytest.approx(refit["val_rmse_bin_fz_after_n"], rel=1e-4)
+
+
+def test_a_refit_that_does_not_beat_the_first_threshold_is_undone(frames, tiny_config):
+    """At rest the first threshold removes a constant spurious force exactly; no refit can beat an exact model, so
+    the layer and the threshold stay as they were."""
+    model = constant_fz_model(tiny_config, frames, 0.0038)
+    train, val = splits(frames)
+    weights = copy.deepcopy(model.fusion.state_dict())
+    report = fit_threshold_and_fusion(model, CachedSource(model, train, "trunk"), at_rest(val), ridge=1e-3)
+    assert report["fusion_refit"]["kept"] is False and report["fusion_refit"]["val_rmse_bin_fz_before_n"] == 0.0
+    assert model.fz_threshold_n == pytest.approx(0.004) == report["fz_threshold"]["fz_threshold_n"]
+    for name, value in model.fusion.state_dict().items():
+        assert torch.equal(value, weights[name]), name
+    # Nothing to refit for: no threshold wins, or the layer is rank-limited.
+    exact = constant_fz_model(tiny_config, frames, 0.0)
+    assert fit_threshold_and_fusion(exact, CachedSource(exact, train, "trunk"), at_rest(val), 1e-3)["fusion_refit"] \
+        == {"kept": False, "skipped": "no Fz threshold"}
+    factored = constant_fz_model(replace(tiny_config, fusion_rank=2), frames, 0.0038)
+    report = fit_threshold_and_fusion(factored, CachedSource(factored, train, "trunk"), at_rest(val), 1e-3)
+    assert report["fz_threshold"]["fz_threshold_n"] == pytest.approx(0.004) == factored.fz_threshold_n
+    assert report["fusion_refit"] == {"kept": False, "skipped": "a rank-limited fusion layer"}
+
+
 def test_train_and_export_writes_the_chosen_fz_threshold_into_model_json_and_every_graph(tmp_path, make_frames,
                                                                                         tiny_config):
     frames = make_frames(60, seed=5)
@@ -649,8 +758,14 @@ def test_train_and_export_writes_the_chosen_fz_threshold_into_model_json_and_eve
     config = TrainConfig(max_epochs=2, batch_size=8, head_epochs=2, head_batch_size=8, head_cycles=1)
     metrics = train_and_export(sensor, parts, tiny_config, config, tmp_path, progress=False, threads=1,
                                data_source="synthetic")
-    chosen = json.loads((tmp_path / TRAINING_JSON).read_text())["phases"]["fz_threshold"]
+    phases = json.loads((tmp_path / TRAINING_JSON).read_text())["phases"]
+    chosen = phases["fz_threshold"]
     threshold = json.loads((tmp_path / MODEL_JSON).read_text())["fz_threshold_n"]
+    # The fusion layer was refitted for the threshold (when that beat the plain fit; the record says which).
+    assert set(phases["fusion_refit"]) == {"kept", "iterations", "ridge", "wall_time_s", "threshold_before_n",
+                                           "val_rmse_bin_fz_before_n", "val_rmse_bin_fz_after_n"}
+    assert (phases["fusion_refit"]["val_rmse_bin_fz_after_n"] < phases["fusion_refit"]["val_rmse_bin_fz_before_n"]) \
+        == phases["fusion_refit"]["kept"]
     # A model this briefly trained answers every frame with spurious forces: a threshold beats none.
     assert threshold is not None and threshold > 0 and chosen["fz_threshold_n"] == threshold
     assert min(chosen["val_rmse_bin_fz_n"].values()) < chosen["val_rmse_bin_fz_n"]["none"]
