@@ -155,8 +155,10 @@ class ApproximateTimeSync(Generic[Item]):
                 best_possible = min(best_possible, spread)
                 if known and spread < best:
                     best, best_picks = spread, picks
-            if best == float("inf") or best_possible < best or self._could_tie(options, best_picks, pivot_stamp):
+            if best == float("inf") or best_possible < best:
                 return None
+            if best <= self.max_spread_s and self._could_tie(options, best_picks, pivot_stamp):
+                return None  # (a bundle too wide is dropped whatever comes next)
         best_picks[pivot_stream] = 0
         return best, best_picks
 

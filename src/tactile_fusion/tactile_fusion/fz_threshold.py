@@ -73,7 +73,9 @@ def fit_threshold_and_fusion(model: ForceFusionNet, train_source, val: FrameSet,
         return {"fz_threshold": first, "fusion_refit": {"kept": False, "skipped": why}}
     before = copy.deepcopy(model.fusion.state_dict())
     started = time.perf_counter()
-    fit_fusion_under_threshold(model, train_source, ridge, REFIT_ITERATIONS)
+    if not fit_fusion_under_threshold(model, train_source, ridge, REFIT_ITERATIONS):
+        return {"fz_threshold": first, "fusion_refit": {"kept": False, "skipped": "the features' normal matrix is "
+                                                        "singular at this ridge"}}
     refit_s = time.perf_counter() - started
     second = fit_fz_threshold(model, val)
     before_rmse, after_rmse = _best_rmse(first), _best_rmse(second)

@@ -85,20 +85,29 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
 
 
 @torch.no_grad()
-def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float, iterations: int) -> None:
-    """Refit the dense fusion layer of a model with an Fz threshold t for the error of its thresholded output.
+def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float, iterations: int) -> bool:
+    """Refit the dense fusion layer of a model with an Fz threshold t for its thresholded output max(Fz - t, 0).
 
-    The model reports max(Fz - t, 0), but `fit_fusion` fits Fz itself: it spends weights on pulling the bins without
-    force to exactly 0 although anything below t comes out as 0 anyway, and it leaves the loaded bins t short. The
-    squared error of the thresholded output is, per bin, (Fz - t - y)^2 where force was applied (y > 0) while Fz > t,
-    y^2 while Fz <= t, and max(Fz - t, 0)^2 where none was. Each iteration replaces this by the least-squares
-    problem that touches it from above at the current weights (majorisation-minimisation, Lange, Hunter & Yang
-    2000): the targets become y + t on loaded bins and min(Fz, t) on the others, and the ridge solution for those
-    targets never raises the thresholded error. Every iteration solves with the same matrix (one Cholesky factor),
-    so it costs two products of the features with the weights. Fx and Fy keep their plain targets.
+    `fit_fusion` fits Fz itself: it spends weights on pulling the bins without force to exactly 0, although anything
+    below t comes out as 0 anyway, and it leaves the loaded bins t short. This refit minimises instead, over the
+    training frames (plus the ridge term),
+
+        H = sum over loaded bins (y > 0) of (Fz - t - y)^2  +  sum over the others of max(Fz - t, 0)^2,
+
+    which equals the squared error of the thresholded output while every loaded bin is predicted above t and lies
+    above it otherwise (a loaded bin predicted below t costs y^2 in the output but more in H: H keeps pulling it up,
+    where the output's own error is flat). H is convex; each iteration minimises the least-squares problem that
+    lies above H and touches it at the current weights (majorisation-minimisation, Lange, Hunter & Yang 2000):
+    targets y + t on loaded bins and min(Fz, t) on the others. So no iteration raises H (tested), but the output's
+    error can rise; whether the refit helps is decided on the validation split (`fz_threshold.
+    fit_threshold_and_fusion`). Every iteration solves with the same matrix (one Cholesky factor), so it costs two
+    products of the features with the weights. Fx and Fy keep their plain targets.
 
     The features are kept in float32 and taken to float64 a chunk of frames at a time: for the default scene's 78540
     frames a float64 copy of them, their targets and the fitted values would add about 3 GB to training's peak.
+
+    Returns False, the layer unchanged, if the ridge leaves the features' normal matrix not positive definite
+    (numerically singular); True when refitted.
     """
     if model.fz_threshold_n is None or "fz" not in model.components:
         raise ValueError("fit_fusion_under_threshold: the model has no Fz threshold to fit for")
@@ -112,7 +121,9 @@ def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float
         gram += design.T @ design
     penalty = torch.eye(len(gram), dtype=gram.dtype)
     penalty[-1, -1] = 0.0  # the bias is not shrunk
-    factor = torch.linalg.cholesky(gram + ridge * len(x) * penalty)
+    factor, singular = torch.linalg.cholesky_ex(gram + ridge * len(x) * penalty)
+    if singular:
+        return False
     fusion = model.fusion.expand
     weights = torch.cat([fusion.weight.T, fusion.bias[None]]).double()               # (F + 1, O)
     fz = torch.zeros(len(model.components), dtype=torch.bool)
@@ -128,6 +139,7 @@ def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float
             rhs += design.T @ torch.where(fz & (target > 0), target + threshold, torch.where(fz, below, target))
         weights = torch.cholesky_solve(rhs, factor)
     _assign(model, weights, None)
+    return True
 
 
 #: Frames per chunk of the refit's float64 products (about 40 MB of features each for the reference sensor).

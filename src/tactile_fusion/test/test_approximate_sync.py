@@ -105,6 +105,32 @@ def test_bundles_wider_than_the_limit_are_never_emitted():
     assert [b.items for b in sync.add("b", 0.031, "b1")] == [("a1", "b1")]
 
 
+def test_a_bundle_waits_for_a_frame_that_could_replace_one_of_its_frames_at_the_same_spread():
+    """a0-b0 set the spread (10 ms) whichever "c" joins them; c0 is 6 ms before the pivot b0 and a later "c" could be
+    closer. Had c1 arrived before b0, the bundle would hold it, so it must not go out with c0 before c1 is known."""
+    results = []
+    for c1_before_b0 in (False, True):
+        sync = ApproximateTimeSync(["a", "b", "c"], max_spread_s=0.02)
+        arrivals = [("a", 0.000, "a0"), ("a", 0.030, "a1"), ("c", 0.004, "c0"), ("b", 0.010, "b0"), ("c", 0.008, "c1")]
+        if c1_before_b0:
+            arrivals[3], arrivals[4] = arrivals[4], arrivals[3]
+        emitted = [sync.add(*arrival) for arrival in arrivals]
+        assert emitted == [[]] * 5  # c1 is before the pivot too: a "c" closer still could come
+        emitted = sync.add("c", 0.012, "c2")
+        results.append([b.items for b in emitted])
+        assert sync.dropped.superseded == 1 and sync.dropped.per_stream["c"] == 1
+    assert results == [[("a0", "b0", "c1")]] * 2
+
+
+def test_a_bundle_too_wide_is_dropped_without_waiting_for_a_frame_that_could_only_tie():
+    sync = ApproximateTimeSync(["a", "b", "c"], max_spread_s=0.01)
+    for arrival in (("a", 0.00, "a0"), ("a", 0.10, "a1"), ("c", 0.04, "c0")):
+        assert sync.add(*arrival) == []
+    # pivot b0: the tightest bundle a0-c0-b0 is 50 ms wide whatever "c" sends next, so a0 goes at once
+    assert sync.add("b", 0.05, "b0") == []
+    assert sync.dropped.too_wide == 1 and sync.dropped.per_stream["a"] == 1
+
+
 def test_out_of_order_messages_are_dropped_and_counted():
     sync = ApproximateTimeSync(["a", "b"])
     sync.add("a", 1.0, "a0")
