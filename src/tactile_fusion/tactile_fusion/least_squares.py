@@ -62,19 +62,16 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
     xv, yv, val_unestimated = camera_features(model, val_source)
     # The validation RMSE over all three components, as normalised_rmse: the model outputs 0 for the others.
     val_count = yv.numel() * 3 // len(model.components)
-    ones = torch.ones(len(x), 1, dtype=x.dtype)
-    design = torch.cat([x, ones], dim=1)
+    design = _design(x)
     gram = design.T @ design
     rhs = design.T @ y
-    penalty = torch.eye(len(gram), dtype=x.dtype)
-    penalty[-1, -1] = 0.0  # the bias is not shrunk
     rank = model.fusion.reduce.out_features if model.fusion.reduce is not None else None
     scores, solutions = {}, {}
     for ridge in ridges:
-        weights = torch.linalg.solve(gram + ridge * len(x) * penalty, rhs)       # (F + 1, O)
+        weights = torch.linalg.solve(_ridged(gram, ridge, len(x)), rhs)          # (F + 1, O)
         if rank is not None:
             weights, basis = _reduce_rank(weights, x, y, rank)
-        prediction = torch.cat([xv, torch.ones(len(xv), 1, dtype=x.dtype)], dim=1) @ weights
+        prediction = _design(xv) @ weights
         scores[ridge] = float(torch.sqrt((torch.sum((prediction - yv) ** 2) + val_unestimated) / val_count))
         solutions[ridge] = (weights, basis if rank is not None else None)
     best = min(scores, key=scores.get)
@@ -119,9 +116,7 @@ def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float
     for rows in chunks:
         design = _design(x[rows])
         gram += design.T @ design
-    penalty = torch.eye(len(gram), dtype=gram.dtype)
-    penalty[-1, -1] = 0.0  # the bias is not shrunk
-    factor, singular = torch.linalg.cholesky_ex(gram + ridge * len(x) * penalty)
+    factor, singular = torch.linalg.cholesky_ex(_ridged(gram, ridge, len(x)))
     if singular:
         return False
     fusion = model.fusion.expand
@@ -149,6 +144,14 @@ REFIT_CHUNK_FRAMES = 4096
 def _design(features: torch.Tensor) -> torch.Tensor:
     """(N, F) features -> (N, F + 1) float64 with a column of ones for the bias."""
     return torch.cat([features.double(), torch.ones(len(features), 1, dtype=torch.float64)], dim=1)
+
+
+def _ridged(gram: torch.Tensor, ridge: float, frames: int) -> torch.Tensor:
+    """The normal matrix of the ridge problem: `gram` (of `_design` features) + ridge * frames on the diagonal of
+    the weights; the bias is not shrunk."""
+    penalty = torch.eye(len(gram), dtype=gram.dtype)
+    penalty[-1, -1] = 0.0
+    return gram + ridge * frames * penalty
 
 
 def _reduce_rank(weights: torch.Tensor, x: torch.Tensor, y: torch.Tensor, rank: int
