@@ -83,12 +83,22 @@ def test_brightness_change_of_the_whole_image_is_compensated():
     assert raw.abs().max() > 30.0 / 255.0  # what a plain difference would call a press everywhere
 
 
-def test_saturated_pixels_are_left_out_of_the_gain_and_blind_frames_stay_finite():
+def test_saturated_pixels_are_left_out_of_the_gain_and_give_a_difference_no_less_than_0():
     reference = torch.full((1, 16, 16), 60, dtype=torch.uint8)
     reference[0, :4] = 200
     over_exposed = torch.clamp(reference.double() * 2.0, max=255).to(torch.uint8)[None]   # 200 -> 255 (clipped)
+    over_exposed[0, 0, 15, 15] = 255            # a bright particle moved onto a dark pixel: 255 / 2 - 60 > 0
     diff = difference_images(over_exposed, reference)
-    torch.testing.assert_close(diff[0, 0, 4:], torch.zeros(12, 16), rtol=0, atol=1e-6)  # gain found: exactly 2
+    torch.testing.assert_close(diff[0, 0, 4:15], torch.zeros(11, 16), rtol=0, atol=1e-6)  # gain found: exactly 2
+    # 255 / 2 against 200 would read as particles gone dark: the sign is unknown, the difference 0
+    assert torch.equal(diff[0, 0, :4], torch.zeros(4, 16))
+    torch.testing.assert_close(diff[0, 0, 15, 15].double(), torch.tensor((127.5 - 60.0) / 255.0, dtype=torch.float64),
+                               rtol=0, atol=1e-6)
+
+
+def test_blind_frames_give_finite_differences():
+    reference = torch.full((1, 16, 16), 60, dtype=torch.uint8)
+    reference[0, :4] = 200
     for level in (0, 255):
         frame = torch.full((1, 1, 16, 16), level, dtype=torch.uint8)
         assert torch.isfinite(difference_images(frame, reference)).all()
