@@ -24,9 +24,9 @@ from tactile_fusion.least_squares import fit_fusion_under_threshold
 from tactile_fusion.model import ForceFusionNet
 
 #: Iterations of the fusion layer's refit for the thresholded output (47 s for the default scene). Measured on the
-#: shipped network's features of the training split alone (docs/learning.md): 12 iterations took the test split
-#: from 2.111 to 2.061 mN per bin, each later one gaining less than the one before; in `make model`, 10 over the
-#: training split and the further draw reached 2.021.
+#: features of the network shipped on 2026-11-23, of the training split alone (docs/learning.md): 12 iterations took
+#: the test split from 2.111 to 2.061 mN per bin, each later one gaining less than the one before; in `make model`,
+#: 10 over the training split and the further draw reached 2.021.
 REFIT_ITERATIONS = 10
 #: Candidate thresholds, relative to the model's Fz scale.
 RELATIVE_THRESHOLDS = tuple(round(0.01 * k, 2) for k in range(31))
