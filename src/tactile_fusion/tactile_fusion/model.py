@@ -296,9 +296,9 @@ class ForceFusionNet(nn.Module):
         The threshold: the gel can only be pushed, so a bin's true Fz is never below 0, but the linear fusion
         layer answers every press with small forces of both signs all over the surface. max(Fz - threshold, 0)
         removes them (and lowers the contact's bins by the threshold, which its choice weighs in). With the fusion
-        layer refitted for it (fz_threshold.fit_threshold_and_fusion), on the shipped network's test split 11 % less
-        error per bin and 3 % less in total force than without a threshold; 14 % less in total at the surface's edge
-        (docs/learning.md).
+        layer refitted for it (fz_threshold.fit_threshold_and_fusion), on the test split of the network shipped on
+        2026-11-23: 11 % less error per bin and 3 % less in total force than without a threshold; 14 % less in total
+        at the surface's edge (docs/learning.md).
         """
         forces = normalised.float() * self.force_scale_n.float()
         if self.fz_threshold_n is None:
