@@ -109,6 +109,11 @@ def model_threshold(description: dict) -> float | None:
         raise ModelFileError(f"{MODEL_JSON}: {exc}") from exc
 
 
+def threshold_text(threshold_n: float) -> str:
+    """An Fz threshold as the command line and the nodes print it ("2.79 mN")."""
+    return f"{1e3 * threshold_n:.3g} mN"
+
+
 def load_model(model_dir: str | Path) -> ForceFusionNet:
     """The torch model of a model directory, in evaluation mode."""
     description = read_model_json(model_dir)

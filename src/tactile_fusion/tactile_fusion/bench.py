@@ -48,7 +48,7 @@ def call_times_s(predictor, images: np.ndarray, reference: np.ndarray, calls: in
 
 
 def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
-    """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n}}, stale) from
+    """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n, frames}}, stale) from
     the model directory's metrics.json, for the backends and precisions there are now: the entries whose file is
     still the one measured, and the keys of those whose file changed since (or has no recorded SHA-256).
     ({}, []) without metrics.json."""
@@ -66,7 +66,8 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
             stale.append(key)
             continue
         accuracy[key] = {"rmse_bin_fz_n": entry["rmse_bin_n"][2], "rmse_total_fz_n": entry["rmse_total_n"][2],
-                         "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n")}
+                         "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n"),
+                         "frames": entry.get("frames")}
     return accuracy, stale
 
 

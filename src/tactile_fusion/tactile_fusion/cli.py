@@ -33,6 +33,7 @@ from tactile_fusion.artifacts import (
     model_components,
     model_threshold,
     read_model_json,
+    threshold_text,
 )
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
@@ -128,7 +129,7 @@ def cmd_train(args) -> int:
               "the model outputs as 0")
     threshold = model_threshold(description)
     if threshold is not None:
-        print(f"its Fz threshold, chosen on the validation split: {1e3 * threshold:.3g} mN (Fz per bin comes out as "
+        print(f"its Fz threshold, chosen on the validation split: {threshold_text(threshold)} (Fz per bin comes out as "
               "max(Fz - threshold, 0))")
     return 0
 
@@ -213,7 +214,7 @@ def cmd_export(args) -> int:
     if args.fit_threshold:
         val, source, note = held_out_split(model_dir, sensor, "val")
         threshold = fit_threshold_of_model_dir(model_dir, sensor, val)["fz_threshold_n"]
-        chosen = "none (no candidate beats none)" if threshold is None else f"{1e3 * threshold:.3g} mN"
+        chosen = "none (no candidate beats none)" if threshold is None else threshold_text(threshold)
         print(f"Fz threshold chosen on the validation split of {source}{note}: {chosen}")
     for precision, path in export_model_dir(model_dir, sensor).items():
         print(f"{precision}: {path}")
@@ -231,9 +232,13 @@ def cmd_bench(args) -> int:
     if args.json:
         print(json.dumps(report))
     else:
+        split_frames = max((e["accuracy"]["frames"] or 0 for e in report["backends"].values() if e["accuracy"]),
+                           default=0)
         for name, entry in report["backends"].items():
             accuracy = entry["accuracy"]
-            error = (f"  test split Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
+            fewer = accuracy and accuracy["frames"] != split_frames
+            part = f" (its first {accuracy['frames']} frames)" if fewer else ""
+            error = (f"  test split{part} Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
                      f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")
             if name in report["accuracy_stale"]:
                 model = f" --model {shlex.quote(str(args.model))}" if args.model else ""

@@ -111,23 +111,25 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
     from onnxruntime.quantization import QuantType, quant_pre_process, quantize_dynamic
 
     fp32_path, int8_path = Path(fp32_path), Path(int8_path)
+    int8_path.unlink(missing_ok=True)  # a graph of another model must not stay behind if this one fails
     prepared = int8_path.with_name(int8_path.stem + ".prep.onnx")
-    quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
+    quantized = int8_path.with_name(int8_path.stem + ".quantized.onnx")
     try:
+        quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
         fusion = fusion_node_names(prepared)
         # Dynamic quantization first rewrites every Gemm as MatMul + Add, the MatMul named "<Gemm name>_MatMul":
         # the fusion layer is excluded under both names.
-        quantize_dynamic(str(prepared), str(int8_path), weight_type=QuantType.QInt8, per_channel=True,
+        quantize_dynamic(str(prepared), str(quantized), weight_type=QuantType.QInt8, per_channel=True,
                          op_types_to_quantize=["MatMul", "Gemm"],
                          nodes_to_exclude=[*fusion, *(f"{name}_MatMul" for name in fusion)])
+        proto = onnx.load(str(quantized))
     finally:
         prepared.unlink(missing_ok=True)
-    proto = onnx.load(str(int8_path))
+        quantized.unlink(missing_ok=True)
     onnx.checker.check_model(proto, full_check=True)
     # Checked on the result, by operator type (not by the names the exclusion relied on).
     head = _after_last_activation(proto.graph.node)
     if any(node.op_type in INT8_OPS for node in head) or not any(node.op_type in FLOAT_PRODUCTS for node in head):
-        int8_path.unlink()
         raise RuntimeError(f"quantize_int8: ONNX Runtime quantized the fusion layer of {fp32_path} (did the names "
                            "of its nodes change?); it must stay in float")
     metadata = {p.key: p.value for p in onnx.load(str(fp32_path), load_external_data=False).metadata_props}

@@ -37,7 +37,7 @@ from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components, load_sensor
-from tactile_fusion.artifacts import check_model_fits
+from tactile_fusion.artifacts import check_model_fits, threshold_text
 from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ProcessingLoad, ReferenceFrames
 from tactile_msgs.msg import ForceDistribution, ImageBundle
@@ -81,8 +81,8 @@ class FusionNode(Node):
             self.get_logger().warning(f"the model estimates {', '.join(self.predictor.components)} only: "
                                       f"{', '.join(left_out)} are published as 0 (its training data had none)")
         if self.predictor.fz_threshold_n is not None:
-            self.get_logger().info(f"Fz per bin below {1e3 * self.predictor.fz_threshold_n:.2f} mN is published as 0 "
-                                   "(the model's Fz threshold)")
+            threshold = threshold_text(self.predictor.fz_threshold_n)
+            self.get_logger().info(f"Fz per bin below {threshold} is published as 0 (the model's Fz threshold)")
 
     def on_capture_reference(self, _request, response):
         self.reference.reset()

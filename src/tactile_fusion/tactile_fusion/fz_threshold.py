@@ -16,10 +16,9 @@ import copy
 import time
 
 import numpy as np
+import torch
 
 from tactile_description import FORCE_COMPONENTS
-from tactile_fusion.data import FrameSet
-from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.least_squares import fit_fusion_under_threshold
 from tactile_fusion.model import ForceFusionNet
 
@@ -33,9 +32,10 @@ RELATIVE_THRESHOLDS = tuple(round(0.01 * k, 2) for k in range(31))
 FZ = FORCE_COMPONENTS.index("fz")
 
 
-def fit_fz_threshold(model: ForceFusionNet, val: FrameSet) -> dict:
+def fit_fz_threshold(model: ForceFusionNet, val) -> dict:
     """Set `model.fz_threshold_n` to the candidate with the lowest validation per-bin Fz RMSE (None if none beats
-    no threshold, or if the model does not estimate Fz).
+    no threshold, or if the model does not estimate Fz). `val`: the validation frames as a source of the training
+    loop (sources.ImageSource, or a CachedSource of them, whose front part the model must still have).
 
     Returns {"fz_threshold_n": the threshold set, "val_rmse_bin_fz_n" and "val_rmse_total_fz_n": {candidate in
     newtons ("none" for no threshold): validation RMSE}}.
@@ -43,8 +43,7 @@ def fit_fz_threshold(model: ForceFusionNet, val: FrameSet) -> dict:
     model.fz_threshold_n = None
     if "fz" not in model.components:
         return {"fz_threshold_n": None, "val_rmse_bin_fz_n": {}, "val_rmse_total_fz_n": {}}
-    predicted = predict_torch(model, val)[..., FZ].reshape(len(val), -1).astype(np.float64)
-    true = np.asarray(val.bin_forces_n)[..., FZ].reshape(len(val), -1).astype(np.float64)
+    predicted, true = _fz_n(model, val)
     scale = float(model.force_scale_n[FZ])
     candidates = {"none": None, **{f"{r * scale:.6g}": r * scale for r in RELATIVE_THRESHOLDS}}
     per_bin, total = {}, {}
@@ -57,11 +56,11 @@ def fit_fz_threshold(model: ForceFusionNet, val: FrameSet) -> dict:
     return {"fz_threshold_n": model.fz_threshold_n, "val_rmse_bin_fz_n": per_bin, "val_rmse_total_fz_n": total}
 
 
-def fit_threshold_and_fusion(model: ForceFusionNet, train_source, val: FrameSet, ridge: float) -> dict:
-    """Choose the Fz threshold (`fit_fz_threshold`), refit the dense fusion layer for the thresholded output on
-    `train_source` (a CachedSource of the training frames, with the ridge of the last least-squares fit) and choose
-    the threshold again for it. The refit is kept only if its validation per-bin Fz RMSE, thresholded, beats the
-    model's before it; otherwise the model is left as the first choice set it.
+def fit_threshold_and_fusion(model: ForceFusionNet, train_source, val, ridge: float) -> dict:
+    """Choose the Fz threshold (`fit_fz_threshold` on the source `val`), refit the dense fusion layer for the
+    thresholded output on `train_source` (a CachedSource of the training frames, with the ridge of the last
+    least-squares fit) and choose the threshold again for it. The refit is kept only if its validation per-bin Fz
+    RMSE, thresholded, beats the model's before it; otherwise the model is left as the first choice set it.
 
     Returns {"fz_threshold": the threshold report that applies (fit_fz_threshold's), "fusion_refit": {"kept",
     "iterations", "ridge", "wall_time_s", "threshold_before_n", "val_rmse_bin_fz_before_n",
@@ -87,6 +86,21 @@ def fit_threshold_and_fusion(model: ForceFusionNet, train_source, val: FrameSet,
             "fusion_refit": {"kept": kept, "iterations": REFIT_ITERATIONS, "ridge": ridge, "wall_time_s": refit_s,
                              "threshold_before_n": first["fz_threshold_n"], "val_rmse_bin_fz_before_n": before_rmse,
                              "val_rmse_bin_fz_after_n": after_rmse}}
+
+
+@torch.no_grad()
+def _fz_n(model: ForceFusionNet, source, batch_size: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """(predicted, true) Fz of every frame of `source` in newtons, (N, bins) float64; predicted as `model` (in
+    evaluation mode) outputs it without its threshold."""
+    model.eval()
+    threshold, model.fz_threshold_n = model.fz_threshold_n, None
+    predicted, true = [], []
+    for start in range(0, len(source), batch_size):
+        indices = np.arange(start, min(start + batch_size, len(source)))
+        predicted.append(model.to_newtons(source.predict(model, indices))[..., FZ].flatten(1).double())
+        true.append(source.forces_n(indices)[..., FZ].flatten(1).double())
+    model.fz_threshold_n = threshold
+    return torch.cat(predicted).numpy(), torch.cat(true).numpy()
 
 
 def _best_rmse(report: dict) -> float:

@@ -56,8 +56,12 @@ class ImageSource:
     def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
         return model.fuse(self.features_at(model, indices))
 
+    def forces_n(self, indices: np.ndarray) -> torch.Tensor:
+        """(B, rows, cols, 3) true forces in newtons."""
+        return torch.from_numpy(np.asarray(self.frames.bin_forces_n[np.sort(indices)]))
+
     def target(self, indices: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.asarray(self.frames.bin_forces_n[np.sort(indices)])) / self.force_scale_n
+        return self.forces_n(indices) / self.force_scale_n
 
 
 class FrontPart(nn.Module):
@@ -162,8 +166,12 @@ class CachedSource:
     def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
         return model.fuse(self.features_at(model, indices))
 
+    def forces_n(self, indices: np.ndarray) -> torch.Tensor:
+        """(B, rows, cols, 3) true forces in newtons (a sample of the copy has its frame's)."""
+        return self.targets[np.sort(indices) % len(self.targets)]
+
     def target(self, indices: np.ndarray) -> torch.Tensor:
-        return self.targets[np.sort(indices) % len(self.targets)] / self.force_scale_n
+        return self.forces_n(indices) / self.force_scale_n
 
 
 #: The weakest blur an augmented frame gets (pixels): a Gaussian below this hardly changes an image.

@@ -403,7 +403,7 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
             model.load_state_dict(before_cycle)
     model.eval()
     if fz_threshold:
-        results.update(fit_threshold_and_fusion(model, cached_train.frames_only(), val, kept_ridge))
+        results.update(fit_threshold_and_fusion(model, cached_train.frames_only(), cached_val, kept_ridge))
     return results
 
 

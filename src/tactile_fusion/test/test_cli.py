@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON, file_sha256
@@ -118,6 +119,33 @@ def test_bench_leaves_out_the_accuracy_of_a_file_that_changed_since_it_was_measu
                 "bench", "--model", str(changed), "--runs", "5").stdout
 
 
+def test_a_backend_measured_on_fewer_test_frames_says_so_and_is_compared_on_those(tiny_model, tmp_path,
+                                                                                    monkeypatch):
+    from tactile_description.sensor import load_sensor
+    from tactile_fusion import pipeline
+    from tactile_fusion.evaluation import predict_frames
+    from tactile_fusion.inference import load_predictor
+    from tactile_fusion.metrics import force_metrics
+
+    out, _ = tiny_model
+    measured = tmp_path / "model"
+    shutil.copytree(out, measured)
+    monkeypatch.setattr(pipeline, "MEASURED_FRAMES", {"torch_fp16": 5})
+    test, source, _ = pipeline.held_out_split(measured, load_sensor())
+    backends = pipeline.record_test_metrics(measured, test, source, threads=1)["backends"]
+    assert backends["torch_fp16"]["frames"] == 5
+    assert {e["frames"] for k, e in backends.items() if k != "torch_fp16"} == {12}
+    first = test.subset(np.arange(5))  # its figures and its deviation from torch fp32 are those of these frames
+    fp16, fp32 = (predict_frames(load_predictor(measured, "torch", p, 1), first) for p in ("fp16", "fp32"))
+    assert backends["torch_fp16"]["rmse_bin_n"] == force_metrics(fp16, first.bin_forces_n)["rmse_bin_n"]
+    assert backends["torch_fp16"]["max_abs_deviation_from_torch_fp32_n"] == float(np.abs(fp16 - fp32).max())
+    report = json.loads(run("bench", "--model", str(measured), "--runs", "3", "--json").stdout)
+    assert report["backends"]["torch_fp16"]["accuracy"]["frames"] == 5
+    text = run("bench", "--model", str(measured), "--runs", "3").stdout
+    assert [line for line in text.splitlines() if "(its first 5 frames)" in line][0].startswith("torch_fp16")
+    assert text.count("its first") == 1
+
+
 def test_export_measure_records_the_figures_of_changed_graphs(tiny_model, tmp_path):
     import torch
 
@@ -161,9 +189,11 @@ def test_export_fit_threshold_gives_a_model_without_one_the_threshold_train_chos
     run("export", "--model", str(out), "--measure", "--quiet")
     assert json.loads((out / METRICS_JSON).read_text())["rmse_bin_n"][2] > 0
 
+    weights = file_sha256(out / STATE_DICT)
     result = run("export", "--model", str(out), "--fit-threshold", "--measure", "--threads", "1", "--quiet")
     assert f"Fz threshold chosen on the validation split of scene edge_corner: {1e3 * trained:.3g} mN" in result.stdout
-    assert json.loads((out / MODEL_JSON).read_text())["fz_threshold_n"] == trained
+    assert json.loads((out / MODEL_JSON).read_text()) == {**description, "fz_threshold_n": trained}
+    assert file_sha256(out / STATE_DICT) == weights  # the threshold is no weight: model.pt is not written again
     assert json.loads((out / TRAINING_JSON).read_text())["phases"]["fz_threshold"]["fz_threshold_n"] == trained
     measured = json.loads((out / METRICS_JSON).read_text())["backends"]
     assert measured["onnxruntime_fp32"]["max_abs_deviation_from_torch_fp32_n"] < 1e-5

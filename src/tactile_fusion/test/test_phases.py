@@ -613,6 +613,11 @@ def constant_fz_model(tiny_config, frames, fz_n: float, components=("fx", "fy", 
     return model
 
 
+def images_of(model, frames) -> ImageSource:
+    """`frames` as the training loop sees them through the whole network."""
+    return ImageSource(frames, model.force_scale_n)
+
+
 def at_rest(frames):
     """The frames with no force at all (as the scenes' rest frames)."""
     return replace(frames, bin_forces_n=np.zeros_like(frames.bin_forces_n))
@@ -620,7 +625,7 @@ def at_rest(frames):
 
 def test_the_fz_threshold_is_the_smallest_candidate_that_removes_a_spurious_force(tiny_config, frames):
     model = constant_fz_model(tiny_config, frames, 0.0038)
-    report = fit_fz_threshold(model, at_rest(frames))
+    report = fit_fz_threshold(model, images_of(model, at_rest(frames)))
     # Candidates are 0.01 x the Fz scale (0.5 mN) apart: 3.8 mN of spurious Fz everywhere needs 8 steps of them.
     assert model.fz_threshold_n == pytest.approx(0.004) and report["fz_threshold_n"] == model.fz_threshold_n
     assert report["val_rmse_bin_fz_n"]["none"] == pytest.approx(0.0038)
@@ -634,10 +639,11 @@ def test_no_fz_threshold_when_none_beats_the_model_as_it_is(tiny_config, frames)
     """An exact model keeps no threshold (a tie goes to none); so does a model that does not estimate Fz."""
     model = constant_fz_model(tiny_config, frames, 0.0)
     model.fz_threshold_n = 0.01
-    assert fit_fz_threshold(model, at_rest(frames))["fz_threshold_n"] is None and model.fz_threshold_n is None
+    assert fit_fz_threshold(model, images_of(model, at_rest(frames)))["fz_threshold_n"] is None
+    assert model.fz_threshold_n is None
     no_fz = constant_fz_model(tiny_config, frames, 0.0, ("fx", "fy"))
-    assert fit_fz_threshold(no_fz, frames) == {"fz_threshold_n": None, "val_rmse_bin_fz_n": {},
-                                               "val_rmse_total_fz_n": {}}
+    assert fit_fz_threshold(no_fz, images_of(no_fz, frames)) == {"fz_threshold_n": None, "val_rmse_bin_fz_n": {},
+                                                                 "val_rmse_total_fz_n": {}}
 
 
 def fitted_with_threshold(frames, tiny_config, threshold_n: float, ridge: float = 1e-9):
@@ -734,18 +740,19 @@ def test_a_singular_normal_matrix_leaves_the_fusion_layer_as_it_was(frames, tiny
     assert fit_fusion_under_threshold(model, few, 0.0, 3) is False
     assert all(torch.equal(value, weights[name]) for name, value in model.fusion.state_dict().items())
     model.fz_threshold_n = None
-    report = fit_threshold_and_fusion(model, few, val, ridge=0.0)
+    report = fit_threshold_and_fusion(model, few, images_of(model, val), ridge=0.0)
     assert report["fusion_refit"] == {"kept": False, "skipped": "the features' normal matrix is singular at this ridge"}
     assert report["fz_threshold"]["fz_threshold_n"] == model.fz_threshold_n
     assert all(torch.equal(value, weights[name]) for name, value in model.fusion.state_dict().items())
 
 
 def test_the_threshold_is_chosen_again_for_the_refitted_fusion_layer(frames, tiny_config):
-    model, train, val, (cached_train, _) = fitted_with_threshold(frames, tiny_config, threshold_n=None, ridge=1e-6)
+    model, train, val, (cached_train, cached_val) = fitted_with_threshold(frames, tiny_config, threshold_n=None,
+                                                                          ridge=1e-6)
     plain = copy.deepcopy(model)
-    report = fit_threshold_and_fusion(model, cached_train, val, ridge=1e-6)
+    report = fit_threshold_and_fusion(model, cached_train, cached_val, ridge=1e-6)
     refit = report["fusion_refit"]
-    first = fit_fz_threshold(plain, val)
+    first = fit_fz_threshold(plain, images_of(plain, val))  # from the images: the same as from the cached trunk
     assert refit["kept"] and refit["threshold_before_n"] == first["fz_threshold_n"] is not None
     assert refit["val_rmse_bin_fz_before_n"] == pytest.approx(min(first["val_rmse_bin_fz_n"].values()))
     assert refit["val_rmse_bin_fz_after_n"] < refit["val_rmse_bin_fz_before_n"]
@@ -761,17 +768,19 @@ def test_a_refit_that_does_not_beat_the_first_threshold_is_undone(frames, tiny_c
     model = constant_fz_model(tiny_config, frames, 0.0038)
     train, val = splits(frames)
     weights = copy.deepcopy(model.fusion.state_dict())
-    report = fit_threshold_and_fusion(model, CachedSource(model, train, "trunk"), at_rest(val), ridge=1e-3)
+    report = fit_threshold_and_fusion(model, CachedSource(model, train, "trunk"), images_of(model, at_rest(val)),
+                                      ridge=1e-3)
     assert report["fusion_refit"]["kept"] is False and report["fusion_refit"]["val_rmse_bin_fz_before_n"] == 0.0
     assert model.fz_threshold_n == pytest.approx(0.004) == report["fz_threshold"]["fz_threshold_n"]
     for name, value in model.fusion.state_dict().items():
         assert torch.equal(value, weights[name]), name
     # Nothing to refit for: no threshold wins, or the layer is rank-limited.
     exact = constant_fz_model(tiny_config, frames, 0.0)
-    assert fit_threshold_and_fusion(exact, CachedSource(exact, train, "trunk"), at_rest(val), 1e-3)["fusion_refit"] \
-        == {"kept": False, "skipped": "no Fz threshold"}
+    report = fit_threshold_and_fusion(exact, CachedSource(exact, train, "trunk"), images_of(exact, at_rest(val)), 1e-3)
+    assert report["fusion_refit"] == {"kept": False, "skipped": "no Fz threshold"}
     factored = constant_fz_model(replace(tiny_config, fusion_rank=2), frames, 0.0038)
-    report = fit_threshold_and_fusion(factored, CachedSource(factored, train, "trunk"), at_rest(val), 1e-3)
+    report = fit_threshold_and_fusion(factored, CachedSource(factored, train, "trunk"),
+                                      images_of(factored, at_rest(val)), 1e-3)
     assert report["fz_threshold"]["fz_threshold_n"] == pytest.approx(0.004) == factored.fz_threshold_n
     assert report["fusion_refit"] == {"kept": False, "skipped": "a rank-limited fusion layer"}
 
