@@ -19,6 +19,7 @@ from tactile_fusion.pipeline import export_all
 from tactile_fusion.training import build_model
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 from tactile_sim import Simulator, load_scene
+from tactile_sim.scene import parse_scene
 
 pytestmark = pytest.mark.system
 DATA = Path(__file__).parent / "data"
@@ -104,12 +105,12 @@ def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_pat
     assert any(m.markers[0].action == Marker.ADD and m.markers[0].points for m in first + markers)
 
 
-def fusion_node_on_bundles(ros_probe, tmp_path, sequences, parameters=None, wait_for=None):
-    """Start a fusion node (reference from its first bundle), publish the first frames of the demo scene to it as
-    bundles numbered `sequences`, collect its estimates until `wait_for` of them (or 30 s), stop it; returns (its exit
-    code, its estimates, its log)."""
+def fusion_node_on_bundles(ros_probe, tmp_path, sequences, parameters=None, wait_for=None, scene=None):
+    """Start a fusion node (reference from its first bundle), publish the first frames of `scene` (default: the demo
+    scene) to it as bundles numbered `sequences`, collect its estimates until `wait_for` of them (or 30 s), stop it;
+    returns (its exit code, its estimates, its log)."""
     sensor = load_sensor()
-    frames = list(Simulator(sensor).stream(load_scene("demo", sensor), frames=len(sequences)))
+    frames = list(Simulator(sensor).stream(scene or load_scene("demo", sensor), frames=len(sequences)))
     fusion = start_node(NodeSpec("tactile_fusion", "fusion_node", "fusion",
                                  {"sensor_config": str(default_sensor_path()), "reference_bundles": 1,
                                   "publish_markers": False, **(parameters or {})}), tmp_path)
@@ -139,6 +140,7 @@ def test_the_fusion_node_reports_bundles_lost_on_the_way(ros_probe, tmp_path):
     got_all = len(estimates) == 4
     assert code == 0 and got_all, log
     assert "lost 3 bundle(s) before bundle 6 (3 since start)" in log
+    assert "a reference of one bundle: whether the cameras still match it is not checked" in log
     # The shipped model was trained on vertical presses: it says that it publishes no shear.
     assert "the model estimates fz only: fx, fy are published as 0" in log
 
@@ -159,3 +161,19 @@ def test_the_fusion_node_publishes_no_estimate_that_contradicts_its_model_and_ke
     code, estimates, log = fusion_node_on_bundles(ros_probe, tmp_path, (0, 1, 2, 3), {"model_dir": str(model_dir)})
     assert code == 0 and estimates == [], log
     assert "no estimate published: components ['fx', 'fy'] are not estimated but hold forces" in log
+
+
+def test_the_fusion_node_says_which_camera_no_longer_matches_its_reference_and_how_to_take_it_again(ros_probe,
+                                                                                                 tmp_path):
+    """cam3 knocked askew after the reference was taken (as in the effects scene), while presses go on."""
+    askew = {"name": "askew", "seed": 5, "indenter": {"shape": "sphere", "diameter_mm": 10},
+             "timeline": [{"rest": {"frames": 4}}, {"random_presses": {"frames": 60, "depth_mm": [0.1, 1.5]}}],
+             "effects": [{"type": "sensor_noise", "sigma": 1.0},
+                         {"type": "camera_misalignment", "cameras": ["cam3"], "shift_px": [1.5, -1.0],
+                          "rotation_deg": 2.0, "frames": [4, 64]}]}
+    code, estimates, log = fusion_node_on_bundles(ros_probe, tmp_path, range(64), {"reference_bundles": 4},
+                                                  scene=parse_scene(askew))
+    assert code == 0 and estimates, log
+    assert "cam3's images no longer match its reference frame" in log, log
+    assert "take the reference again: ros2 service call /fusion/capture_reference std_srvs/srv/Trigger" in log
+    assert not any(f"{c}'s images no longer match" in log for c in ("cam0", "cam1", "cam2")), log

@@ -39,7 +39,13 @@ from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOP
 from tactile_description import left_out_components, load_sensor
 from tactile_fusion.artifacts import check_model_fits, threshold_text
 from tactile_fusion.inference import InputError, load_predictor
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ProcessingLoad, ReferenceFrames
+from tactile_fusion.live_estimation import (
+    REFERENCE_BUNDLES,
+    BundleSequence,
+    ProcessingLoad,
+    ReferenceFrames,
+    ReferenceMatch,
+)
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: Default `markers_rate_hz`: enough for a display (see above).
@@ -67,6 +73,7 @@ class FusionNode(Node):
         check_model_fits(self.predictor, self.sensor)
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.reference = ReferenceFrames(self.sensor.n_cameras, self.image_shape, reference_bundles)
+        self.reference_match: ReferenceMatch | None = None  # once the reference is taken
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
         self.sequence = BundleSequence()
         self.forces_pub = self.create_publisher(ForceDistribution, ESTIMATE_TOPIC, 10)
@@ -86,6 +93,7 @@ class FusionNode(Node):
 
     def on_capture_reference(self, _request, response):
         self.reference.reset()
+        self.reference_match = None
         response.success = True
         response.message = f"capturing the reference from the next {self.reference.count} complete bundles"
         return response
@@ -123,7 +131,13 @@ class FusionNode(Node):
         if self.reference.images is None:
             if self.reference.add(images, camera_ok):
                 self.get_logger().info("reference frames captured: publishing forces")
+                if self.reference.rest_levels is None:
+                    self.get_logger().info("a reference of one bundle: whether the cameras still match it is not "
+                                           "checked (reference_bundles of 2 or more for that)")
+                else:
+                    self.reference_match = ReferenceMatch(self.reference.rest_levels)
             return
+        self.check_reference_match(images, camera_ok)
         if not camera_ok.any():
             return
         try:
@@ -147,6 +161,25 @@ class FusionNode(Node):
             self.markers_pub.publish(force_markers(forces, self.sensor.grid, bundle.header.stamp,
                                                    self.sensor.frame_id,
                                                    lifetime_s=max(1.0, 2.0 * self.markers_period_s)))
+
+
+    def check_reference_match(self, images, camera_ok) -> None:
+        """Say when a camera's images stop or start again to match its reference frame (live_estimation.
+        ReferenceMatch)."""
+        if self.reference_match is None:
+            return
+        for camera in self.reference_match.add(images, self.reference.images, camera_ok):
+            name = self.sensor.camera_ids[camera]
+            level = self.reference_match.level(camera)
+            if self.reference_match.off[camera]:
+                self.get_logger().warning(
+                    f"{name}'s images no longer match its reference frame ({level:.1f} grey levels of difference at "
+                    f"the 75th percentile, {self.reference.rest_levels[camera]:.1f} when it was taken): the camera "
+                    "moved or was refocused, or the gel aged, and the estimates err several times more; with nothing "
+                    f"on the surface, take the reference again: ros2 service call "
+                    f"{self.get_fully_qualified_name()}/capture_reference std_srvs/srv/Trigger")
+            else:
+                self.get_logger().info(f"{name}'s images match its reference frame again ({level:.1f} grey levels)")
 
 
 def main(args: list[str] | None = None) -> None:

@@ -1,5 +1,6 @@
 """Live estimation without ROS: the reference frames (shared by the fusion node and offline bag evaluation), the
-check that the fusion node keeps up with its cameras, and the count of bundles lost on the way to it.
+check that they still match the cameras, the check that the fusion node keeps up with its cameras, and the count of
+bundles lost on the way to it.
 
 The model needs each camera's frame at rest; the live graph takes the pixel-wise mean of the first `count`
 complete bundles (nothing may touch the surface meanwhile) and can be asked to take it again.
@@ -10,42 +11,110 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+import torch
+
+from tactile_fusion.model import difference_images
 
 #: Complete bundles averaged into the reference frames (the fusion node's default `reference_bundles`).
 REFERENCE_BUNDLES = 10
 
 
+def mismatch_levels(images: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(C,) how far each camera's image is from its reference: the 75th percentile of the absolute difference the
+    model reads (`model.difference_images`: brightness compensated, saturated pixels as lower bounds), in grey levels.
+
+    A press moves the particles in part of an image only and raises this a little above the sensor noise (the
+    simulator's scenes, presses up to 1.5 mm deep, shear and up to four contacts included: at most 3.6 grey levels,
+    1.0 at rest with sensor noise of sigma 1, 2.0 with sigma 1.5). What moves or changes every particle raises it all
+    over (the effects scene, sigma 1.5: defocus blur 9.6, a camera shifted by 1.8 px and turned by 2 degrees 9.7, the
+    gel's creep after half a pixel 3.1)."""
+    difference = difference_images(torch.from_numpy(images[None]), torch.from_numpy(reference))[0]
+    magnitude = difference.abs().reshape(len(images), -1)
+    rank = -(-3 * magnitude.shape[1] // 4)  # the smallest value that 75 % of the pixels do not exceed
+    return torch.kthvalue(magnitude, rank, dim=1).values.double().numpy() * 255.0
+
+
 class ReferenceFrames:
-    """The pixel-wise mean of the first `count` complete frames: each camera's image at rest."""
+    """The pixel-wise mean of the first `count` complete frames: each camera's image at rest, and how far the frames
+    it was taken from lie from it (`rest_levels`; with one frame that cannot be told, and they stay None)."""
 
     def __init__(self, n_cameras: int, image_shape: tuple[int, int], count: int = REFERENCE_BUNDLES):
         if count < 1:
             raise ValueError(f"the reference needs at least one frame, got count={count}")
         self.count = count
-        self._sum = np.zeros((n_cameras, *image_shape), np.float64)
-        self._frames = 0
+        self.n_cameras, self.image_shape = n_cameras, image_shape
+        self._frames: list[np.ndarray] = []
         self.images: np.ndarray | None = None  # (C, H, W) uint8 once complete
+        self.rest_levels: np.ndarray | None = None  # (C,) grey levels once complete (`mismatch_levels`' median)
 
     @property
     def frames_taken(self) -> int:
-        return self._frames
+        return len(self._frames)
 
     def reset(self) -> None:
         """Take the reference again from the next complete frames (e.g. after the gel has aged)."""
-        self._sum[:] = 0
-        self._frames = 0
-        self.images = None
+        self._frames = []
+        self.images = self.rest_levels = None
 
     def add(self, images: np.ndarray, camera_ok: np.ndarray) -> bool:
         """Count one frame (ignored unless every camera is ok); True when this frame completed the reference."""
         if self.images is not None or not np.all(camera_ok):
             return False
-        self._sum += images
-        self._frames += 1
-        if self._frames < self.count:
+        if images.shape != (self.n_cameras, *self.image_shape):
+            raise ValueError(f"reference frames are {(self.n_cameras, *self.image_shape)} (cameras, height, width), "
+                             f"got {images.shape}")
+        self._frames.append(np.array(images, dtype=np.uint8))
+        if len(self._frames) < self.count:
             return False
-        self.images = np.rint(self._sum / self._frames).astype(np.uint8)
+        self.images = np.rint(np.mean(self._frames, axis=0)).astype(np.uint8)
+        if len(self._frames) > 1:
+            self.rest_levels = np.median([mismatch_levels(f, self.images) for f in self._frames], axis=0)
+        self._frames = []
         return True
+
+
+class ReferenceMatch:
+    """Which cameras' images no longer match their reference frames, for the hint to take the reference again.
+
+    The model reads the difference of each image from its camera's reference and takes it for pressure. A camera
+    knocked askew or refocused, or a gel that has crept or dimmed since the reference was taken, makes a difference
+    all over the image, and the estimate errs 3-5 times more per bin (docs/nodes.md); only a new reference at rest
+    helps. A camera counts as off its reference while the median of its last `CHECKS` `mismatch_levels`, one every
+    `EVERY` frames (five a second at 40 Hz), exceeds its level when the reference was taken by more than `MARGIN`:
+    the simulator's presses raise it by 2.6 grey levels at most, blur and a camera askew by 7.6 (see
+    `mismatch_levels`), and a single frame does not decide. A contact wide enough to move the particles in most of a
+    camera's view for a second would count too. Cameras not ok in a frame are not checked in it.
+    """
+
+    EVERY = 8
+    CHECKS = 5
+    MARGIN = 4.0
+
+    def __init__(self, rest_levels: np.ndarray):
+        self.limits = np.asarray(rest_levels, dtype=np.float64) + self.MARGIN
+        self._levels = [deque(maxlen=self.CHECKS) for _ in self.limits]
+        self.off = np.zeros(len(self.limits), dtype=bool)
+        self._frames = 0
+
+    def add(self, images: np.ndarray, reference: np.ndarray, camera_ok: np.ndarray) -> np.ndarray:
+        """Count one frame; returns the indices of the cameras whose state (`off`) this frame changed."""
+        self._frames += 1
+        if self._frames % self.EVERY:
+            return np.zeros(0, dtype=int)
+        levels = mismatch_levels(images, reference)
+        for camera in np.flatnonzero(camera_ok):
+            self._levels[camera].append(levels[camera])
+        median = np.array([np.median(q) if len(q) == self.CHECKS else np.nan for q in self._levels])
+        decided = ~np.isnan(median)
+        now_off = self.off.copy()
+        now_off[decided] = median[decided] > self.limits[decided]
+        changed = np.flatnonzero(now_off != self.off)
+        self.off = now_off
+        return changed
+
+    def level(self, camera: int) -> float:
+        """The median of the camera's last checks (grey levels)."""
+        return float(np.median(self._levels[camera]))
 
 
 class ProcessingLoad:

@@ -3,7 +3,16 @@ from collections import deque
 import numpy as np
 import pytest
 
-from tactile_fusion.live_estimation import BundleSequence, ProcessingLoad, ReferenceFrames
+from tactile_description import load_sensor
+from tactile_fusion.live_estimation import (
+    BundleSequence,
+    ProcessingLoad,
+    ReferenceFrames,
+    ReferenceMatch,
+    mismatch_levels,
+)
+from tactile_sim import Simulator
+from tactile_sim.scene import parse_scene
 
 
 def test_reference_is_the_rounded_mean_of_complete_frames():
@@ -30,6 +39,63 @@ def test_reset_takes_the_reference_again():
 def test_a_reference_needs_a_frame():
     with pytest.raises(ValueError, match="at least one frame"):
         ReferenceFrames(4, (128, 128), count=0)
+
+
+def test_the_reference_knows_how_far_its_own_frames_lie_from_it():
+    """The level of sensor noise (sigma 2 grey levels) at the 75th percentile, 1.15 sigma, a little less because
+    each frame is part of the mean."""
+    rng = np.random.default_rng(0)
+    scene = rng.uniform(60, 200, (2, 32, 32))
+    reference = ReferenceFrames(2, (32, 32), count=10)
+    frames = [np.rint(scene + rng.normal(0, 2.0, scene.shape)).astype(np.uint8) for _ in range(10)]
+    assert [reference.add(f, np.array([True, True])) for f in frames] == [False] * 9 + [True]
+    assert reference.rest_levels.shape == (2,) and np.all((reference.rest_levels > 1.9) & (reference.rest_levels < 2.5))
+    np.testing.assert_array_equal(reference.rest_levels,
+                                  np.median([mismatch_levels(f, reference.images) for f in frames], axis=0))
+    reference.reset()
+    assert reference.rest_levels is None
+    one = ReferenceFrames(2, (32, 32), count=1)  # a frame is its own reference: how far frames lie is unknown
+    assert one.add(frames[0], np.array([True, True])) and one.rest_levels is None
+    with pytest.raises(ValueError, match=r"reference frames are \(2, 32, 32\)"):
+        reference.add(frames[0][:, :16], np.array([True, True]))
+
+
+#: Presses (noise of sigma 1.5), then cam3 knocked askew for frames 60-109 (as in the effects scene), then set right.
+ASKEW = {"name": "askew", "seed": 3, "indenter": {"shape": "sphere", "diameter_mm": 10},
+         "timeline": [{"rest": {"frames": 10}},
+                      {"random_presses": {"frames": 150, "margin_mm": 3.0, "depth_mm": [0.1, 1.5]}}],
+         "effects": [{"type": "sensor_noise", "sigma": 1.5},
+                     {"type": "camera_misalignment", "cameras": ["cam3"], "shift_px": [1.5, -1.0],
+                      "rotation_deg": 2.0, "frames": [60, 110]}]}
+
+
+def test_a_camera_knocked_askew_is_off_its_reference_until_it_is_set_right_and_presses_are_not():
+    sensor = load_sensor()
+    frames = list(Simulator(sensor).stream(parse_scene(ASKEW)))
+    reference = ReferenceFrames(sensor.n_cameras, frames[0].images.shape[1:], count=10)
+    for frame in frames[:10]:
+        reference.add(frame.images, frame.camera_ok)
+    match = ReferenceMatch(reference.rest_levels)
+    assert np.all((reference.rest_levels > 1.5) & (reference.rest_levels < 2.5))  # sensor noise of sigma 1.5
+    changes = [(frame.index, int(camera)) for frame in frames[10:]
+               for camera in match.add(frame.images, reference.images, frame.camera_ok)]
+    window = ReferenceMatch.EVERY * ReferenceMatch.CHECKS  # the frames the median of the checks spans
+    assert [camera for _, camera in changes] == [3, 3], changes  # cam3 off, then on again; no press counts
+    (off_at, _), (on_at, _) = changes
+    assert 60 < off_at <= 60 + window and 110 < on_at <= 110 + window, changes
+    assert not match.off.any()
+
+
+def test_a_camera_that_is_not_ok_is_not_checked():
+    match = ReferenceMatch(np.zeros(2))
+    reference = np.full((2, 16, 16), 100, np.uint8)
+    black = np.stack([reference[0], np.zeros((16, 16), np.uint8)])  # cam1 black: 100 grey levels off
+    changed = [match.add(black, reference, np.array([True, False])) for _ in range(10 * ReferenceMatch.EVERY)]
+    assert not any(len(c) for c in changed) and not match.off.any()
+    changed = [match.add(black, reference, np.array([True, True])) for _ in range(ReferenceMatch.CHECKS
+                                                                                 * ReferenceMatch.EVERY)]
+    assert [list(c) for c in changed if len(c)] == [[1]] and match.off.tolist() == [False, True]
+    assert match.level(1) == pytest.approx(100.0)
 
 
 def every(period_s: float, start_s: float = 100.0):
