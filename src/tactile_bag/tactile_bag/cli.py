@@ -80,6 +80,10 @@ def cmd_eval(args) -> int:
           f"{summary['estimates']} estimates ({summary['degraded_estimates']} without every camera)")
     if summary["skipped"]:
         print("skipped: " + ", ".join(f"{reason} {n}" for reason, n in summary["skipped"].items()))
+    if summary["off_reference_camera_ids"]:
+        print(f"{summary['estimates_off_reference']} estimates while {', '.join(summary['off_reference_camera_ids'])} "
+              "no longer matched the reference frames (a camera moved or was refocused, or the gel aged, after the "
+              "first bundles): those estimates err several times more; record the rest at the start again")
     totals = summary["estimated_total_n"]
     if totals:
         print("estimated total force, N (Fx, Fy, Fz): mean " + _triple(totals["mean"]) + "  min "

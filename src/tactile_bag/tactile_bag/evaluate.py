@@ -7,7 +7,8 @@ compared with the simulator's ground truth recorded beside them.
 2. Reference frames, as fusion_node takes them: the pixel-wise mean of the first `reference_bundles` complete
    bundles (every camera present and readable), rounded to uint8. Those bundles are not estimated.
 3. Every later bundle goes through the predictor; a missing or unreadable camera is replaced by its reference
-   frame (it reports "no contact"), as in fusion_node, and the estimate counts as degraded.
+   frame (it reports "no contact"), as in fusion_node, and the estimate counts as degraded. Whether each camera's
+   images still match its reference frame is checked as fusion_node checks it (live_estimation.ReferenceMatch).
 4. Each estimate is matched with the ground-truth message nearest to its bundle stamp, if one lies within
    `match_tolerance_s` (the bundle stamp is the median of the cameras' capture stamps, the truth is stamped
    with the capture time), and the paper's metrics are computed over the matched pairs
@@ -34,7 +35,7 @@ from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.artifacts import check_model_fits
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ReferenceFrames
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ReferenceFrames, ReferenceMatch
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
@@ -67,6 +68,8 @@ class BagEvaluation:
     stamps_s: np.ndarray            # (N,) bundle stamps of the estimates
     estimates_n: np.ndarray         # (N, rows, cols, 3) float32
     camera_ok: np.ndarray           # (N, C) bool
+    off_reference: np.ndarray | None  # (N, C) bool: the camera no longer matched its reference frame (ReferenceMatch);
+    #                                   None: not checked (a reference of one bundle)
     truth_messages: int
     truth_index: np.ndarray         # (N,) index into truth_n of the matched ground truth, -1 for none
     truth_n: np.ndarray             # (M, rows, cols, 3) float32, every ground truth message of the bag
@@ -86,6 +89,7 @@ class BagEvaluation:
         totals = self.estimates_n.astype(np.float64).sum(axis=(1, 2))
         metrics = self.metrics() or {}
         missing = sorted({c for row in self.camera_ok for c, ok in zip(self.camera_ids, row, strict=True) if not ok})
+        off = self.off_reference if self.off_reference is not None else np.zeros_like(self.camera_ok)
         return {
             "bag": self.bag,
             "source": self.source,
@@ -94,6 +98,9 @@ class BagEvaluation:
             "estimates": len(self.stamps_s),
             "degraded_estimates": int((~self.camera_ok).any(axis=1).sum()),
             "missing_camera_ids": missing,
+            "reference_checked": self.off_reference is not None,
+            "estimates_off_reference": int(off.any(axis=1).sum()),
+            "off_reference_camera_ids": [c for c, o in zip(self.camera_ids, off.any(axis=0), strict=True) if o],
             "skipped": dict(self.skipped),
             "ground_truth_messages": self.truth_messages,
             "matched_with_ground_truth": int(self.matched.sum()),
@@ -262,13 +269,17 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
             truth_stamps, truth = no_ground_truth(sensor)
         frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
         reference = ReferenceFrames(sensor.n_cameras, reader.shape, reference_bundles)
+        match = None
         bundles = 0
-        stamps, estimates, camera_ok = [], [], []
+        stamps, estimates, camera_ok, off_reference = [], [], [], []
         for frame in frames:
             bundles += 1
             if reference.images is None:
-                reference.add(frame.images, frame.camera_ok)
+                if reference.add(frame.images, frame.camera_ok) and reference.rest_levels is not None:
+                    match = ReferenceMatch(reference.rest_levels)
                 continue
+            if match is not None:
+                match.add(frame.images, reference.images, frame.camera_ok)
             if not frame.camera_ok.any():
                 reader.skip("bundle without any usable image")
                 continue
@@ -276,6 +287,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
                                                camera_ok=frame.camera_ok))
             stamps.append(frame.stamp_s)
             camera_ok.append(frame.camera_ok)
+            off_reference.append(match.off.copy() if match is not None else np.zeros(sensor.n_cameras, bool))
     if reference.images is None:
         raise BagError(f"bag {path}: only {reference.frames_taken} complete bundle(s) of {bundles}, the reference "
                        f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles")
@@ -286,5 +298,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         estimates_n=np.stack(estimates) if estimates else np.zeros((0, sensor.grid.rows, sensor.grid.cols, 3),
                                                                     np.float32),
         camera_ok=np.array(camera_ok, bool).reshape(len(stamps), sensor.n_cameras),
+        off_reference=(np.array(off_reference, bool).reshape(len(stamps), sensor.n_cameras) if match is not None
+                       else None),
         truth_messages=len(truth_stamps), truth_index=match_stamps(stamps_s, truth_stamps, match_tolerance_s),
         truth_n=truth, skipped=reader.skipped)

@@ -19,6 +19,8 @@ from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.metrics import force_metrics
+from tactile_sim import Simulator
+from tactile_sim.scene import parse_scene
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +60,31 @@ def test_estimates_are_the_predictors_against_the_mean_of_the_first_bundles(sim_
     summary = result.summary()
     assert summary["matched_with_ground_truth"] == summary["estimates"] == n
     assert summary["degraded_estimates"] == 0 and summary["missing_camera_ids"] == []
+    assert summary["reference_checked"] and summary["off_reference_camera_ids"] == []
+    assert summary["estimates_off_reference"] == 0
     json.dumps(summary)  # plain types only
+
+
+def test_estimates_made_while_a_camera_no_longer_matched_the_reference_are_counted(tmp_path, write_bag, sensor,
+                                                                                  model_dir, capsys):
+    """cam3 knocked askew after the reference, from frame 30 on, while presses go on (as in the effects scene)."""
+    askew = {"name": "askew", "seed": 5, "indenter": {"shape": "sphere", "diameter_mm": 10},
+             "timeline": [{"rest": {"frames": 10}}, {"random_presses": {"frames": 70, "depth_mm": [0.1, 1.5]}}],
+             "effects": [{"type": "sensor_noise", "sigma": 1.0},
+                         {"type": "camera_misalignment", "cameras": ["cam3"], "shift_px": [1.5, -1.0],
+                          "rotation_deg": 2.0, "frames": [30, 80]}]}
+    write_bag(tmp_path / "bag", sensor, list(Simulator(sensor).stream(parse_scene(askew))))
+    result = evaluate_bag(tmp_path / "bag", sensor, load_predictor(model_dir, "torch"))
+    summary = result.summary()
+    assert summary["off_reference_camera_ids"] == ["cam3"]
+    # Off from a few checks into the askew frames (estimates start at frame 10) until the end, none before them.
+    off = result.off_reference[:, 3]
+    first = int(np.argmax(off))
+    assert 20 < first <= 20 + 8 * 5 and off[first:].all() and summary["estimates_off_reference"] == off.sum()
+    assert main(["eval", str(tmp_path / "bag"), "--model", str(model_dir), "--backend", "torch"]) == 0
+    assert f"{off.sum()} estimates while cam3 no longer matched the reference frames" in capsys.readouterr().out
+    unchecked = evaluate_bag(tmp_path / "bag", sensor, load_predictor(model_dir, "torch"), reference_bundles=1)
+    assert unchecked.off_reference is None and unchecked.summary()["reference_checked"] is False
 
 
 def test_recorded_bundles_give_the_same_estimates(tmp_path, write_bag, sensor, sim_frames, predictor):
