@@ -49,7 +49,7 @@ class ReferenceFrames:
 
     @property
     def frames_taken(self) -> int:
-        return len(self._frames)
+        return self.count if self.images is not None else len(self._frames)
 
     def reset(self) -> None:
         """Take the reference again from the next complete frames (e.g. after the gel has aged)."""

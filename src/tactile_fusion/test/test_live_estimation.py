@@ -23,6 +23,7 @@ def test_reference_is_the_rounded_mean_of_complete_frames():
     assert not reference.add(np.full((2, 2, 2), 99, np.uint8), np.array([True, False]))  # incomplete: ignored
     assert reference.add(np.full((2, 2, 2), 13, np.uint8), ok)
     assert reference.images.dtype == np.uint8 and np.all(reference.images == 12)  # (10 + 13) / 2 = 11.5 -> 12
+    assert reference.frames_taken == 2
     assert not reference.add(np.zeros((2, 2, 2), np.uint8), ok)  # complete: later frames change nothing
     assert np.all(reference.images == 12)
 
