@@ -237,7 +237,7 @@ def cmd_bench(args) -> int:
         for name, entry in report["backends"].items():
             accuracy = entry["accuracy"]
             fewer = accuracy and accuracy["frames"] != split_frames
-            part = f" (its first {accuracy['frames']} frames)" if fewer else ""
+            part = f" ({accuracy['frames']} of its frames)" if fewer else ""
             error = (f"  test split{part} Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
                      f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")
             if name in report["accuracy_stale"]:

@@ -122,30 +122,38 @@ def export_all(model: ForceFusionNet, out_dir: Path) -> dict:
     return paths
 
 
-#: Test frames that a backend is measured on, where not all of them (the first ones). PyTorch's float16
-#: convolutions run in a reference kernel on a CPU without float16 arithmetic (this one has no AVX512-FP16): about
-#: 10 ms per frame, five times torch fp32, which on the default scene's 9240 test frames took about 100 s of
+#: Test frames that a backend is measured on, where not all of them (spread evenly over the split). PyTorch's
+#: float16 convolutions run in a reference kernel on a CPU without float16 arithmetic (this one has no AVX512-FP16):
+#: about 10 ms per frame, five times torch fp32, which on the default scene's 9240 test frames took about 100 s of
 #: `make model`. ONNX Runtime fp16 runs the same float16 network over every test frame.
 MEASURED_FRAMES = {"torch_fp16": 1024}
 
 
+def measured_frames(key: str, frames: int) -> np.ndarray | None:
+    """Indices of the test frames that backend `key` is measured on (`MEASURED_FRAMES`), None for all of them. Spread
+    evenly, not the first ones: the split's order follows the scene, and its first frames are not a fair sample."""
+    if key not in MEASURED_FRAMES or MEASURED_FRAMES[key] >= frames:
+        return None
+    return np.unique(np.linspace(0, frames - 1, MEASURED_FRAMES[key]).round().astype(int))
+
+
 def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> tuple[dict, dict]:
-    """Test metrics of every backend and precision (on `MEASURED_FRAMES` of the test split where it says so, the
-    metrics' "frames"), with each one's largest deviation from torch fp32 (N) on the same frames and the file it ran
-    (name and SHA-256, so that figures of a file that changed since can be told apart), and the predictions:
+    """Test metrics of every backend and precision (on `measured_frames` of the test split where they are fewer,
+    the metrics' "frames"), with each one's largest deviation from torch fp32 (N) on the same frames and the file it
+    ran (name and SHA-256, so that figures of a file that changed since can be told apart), and the predictions:
     ({backend_precision: metrics}, {backend_precision: (frames, rows, cols, 3) newtons})."""
-    results, predictions = {}, {}
+    results, predictions, picks = {}, {}, {}
     for backend, precisions in BACKENDS.items():
         for precision in precisions:
             key = f"{backend}_{precision}"
-            frames = test.subset(np.arange(min(MEASURED_FRAMES[key], len(test)))) if key in MEASURED_FRAMES else test
+            picks[key] = measured_frames(key, len(test))
+            frames = test if picks[key] is None else test.subset(picks[key])
             metrics, predictions[key] = evaluate(load_predictor(model_dir, backend, precision, threads), frames)
             model_file = backend_file(model_dir, backend, precision)
             results[key] = {**metrics, "model_file": model_file.name, "model_file_sha256": file_sha256(model_file)}
-    reference = predictions["torch_fp32"]
     for key, predicted in predictions.items():
-        deviation = np.abs(predicted - reference[:len(predicted)]).max()
-        results[key]["max_abs_deviation_from_torch_fp32_n"] = float(deviation)
+        reference = predictions["torch_fp32"] if picks[key] is None else predictions["torch_fp32"][picks[key]]
+        results[key]["max_abs_deviation_from_torch_fp32_n"] = float(np.abs(predicted - reference).max())
     return results, predictions
 
 
