@@ -287,7 +287,8 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
                                                camera_ok=frame.camera_ok))
             stamps.append(frame.stamp_s)
             camera_ok.append(frame.camera_ok)
-            off_reference.append(match.off.copy() if match is not None else np.zeros(sensor.n_cameras, bool))
+            if match is not None:
+                off_reference.append(match.off.copy())
     if reference.images is None:
         raise BagError(f"bag {path}: only {reference.frames_taken} complete bundle(s) of {bundles}, the reference "
                        f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles")

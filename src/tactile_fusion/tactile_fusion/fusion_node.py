@@ -162,7 +162,6 @@ class FusionNode(Node):
                                                    self.sensor.frame_id,
                                                    lifetime_s=max(1.0, 2.0 * self.markers_period_s)))
 
-
     def check_reference_match(self, images, camera_ok) -> None:
         """Say when a camera's images stop or start again to match its reference frame (live_estimation.
         ReferenceMatch)."""
