@@ -24,7 +24,7 @@ from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
-from tactile_fusion.metrics import metrics_table
+from tactile_fusion.metrics import contact_table, metrics_table
 
 USAGE_ERROR = 2
 
@@ -91,7 +91,9 @@ def cmd_eval(args) -> int:
     if summary["matched_with_ground_truth"]:
         print(f"{summary['matched_with_ground_truth']} estimates matched with ground truth "
               f"({summary['ground_truth_messages']} messages on {truth_topic}):")
-        print(metrics_table({Path(result.bag).name: result.metrics()}))
+        metrics = result.metrics()
+        print(metrics_table({Path(result.bag).name: metrics}))
+        print(contact_table({Path(result.bag).name: metrics["contact"]}))
     elif summary["ground_truth_messages"]:
         print(f"no estimate lies within {MATCH_TOLERANCE_S * 1e3:g} ms of the {summary['ground_truth_messages']} "
               f"ground-truth messages on {truth_topic}: estimate statistics only")

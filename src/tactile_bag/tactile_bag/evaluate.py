@@ -36,7 +36,7 @@ from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ReferenceFrames, ReferenceMatch
-from tactile_fusion.metrics import force_metrics
+from tactile_fusion.metrics import contact_metrics, force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 if TYPE_CHECKING:  # the model stack (torch, onnxruntime) takes seconds to import: only the caller loads it
@@ -73,6 +73,7 @@ class BagEvaluation:
     truth_messages: int
     truth_index: np.ndarray         # (N,) index into truth_n of the matched ground truth, -1 for none
     truth_n: np.ndarray             # (M, rows, cols, 3) float32, every ground truth message of the bag
+    bin_centers_m: np.ndarray       # (rows, cols, 2) of the sensor's bins, for the centre of pressure
     skipped: dict[str, int] = field(default_factory=dict)  # why images or bundles were not used, with counts
 
     @property
@@ -80,10 +81,12 @@ class BagEvaluation:
         return self.truth_index >= 0
 
     def metrics(self) -> dict | None:
-        """force_metrics over the estimates that have ground truth, or None without any."""
+        """force_metrics over the estimates that have ground truth, with their contact_metrics under "contact", or
+        None without any."""
         if not self.matched.any():
             return None
-        return force_metrics(self.estimates_n[self.matched], self.truth_n[self.truth_index[self.matched]])
+        estimates, truth = self.estimates_n[self.matched], self.truth_n[self.truth_index[self.matched]]
+        return force_metrics(estimates, truth) | {"contact": contact_metrics(estimates, truth, self.bin_centers_m)}
 
     def summary(self) -> dict:
         totals = self.estimates_n.astype(np.float64).sum(axis=(1, 2))
@@ -108,6 +111,7 @@ class BagEvaluation:
             "rmse_total_n": metrics.get("rmse_total_n"),
             "rmse_total_fz_percent_range": metrics.get("rmse_total_fz_percent_range"),
             "max_true_total_fz_n": metrics.get("max_total_fz_n"),
+            "contact": metrics.get("contact"),
             "estimated_total_n": {"mean": totals.mean(axis=0).tolist(), "min": totals.min(axis=0).tolist(),
                                   "max": totals.max(axis=0).tolist()} if len(totals) else None,
         }
@@ -302,4 +306,4 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         off_reference=(np.array(off_reference, bool).reshape(len(stamps), sensor.n_cameras) if match is not None
                        else None),
         truth_messages=len(truth_stamps), truth_index=match_stamps(stamps_s, truth_stamps, match_tolerance_s),
-        truth_n=truth, skipped=reader.skipped)
+        truth_n=truth, bin_centers_m=sensor.grid.bin_centers_m(), skipped=reader.skipped)

@@ -18,7 +18,7 @@ from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
-from tactile_fusion.metrics import force_metrics
+from tactile_fusion.metrics import contact_metrics, force_metrics
 from tactile_sim import Simulator
 from tactile_sim.scene import parse_scene
 
@@ -57,7 +57,12 @@ def test_estimates_are_the_predictors_against_the_mean_of_the_first_bundles(sim_
     direct = force_metrics(expected, truth)
     assert result.metrics()["rmse_bin_n"] == pytest.approx(direct["rmse_bin_n"], rel=1e-5)
     assert result.metrics()["rmse_total_n"] == pytest.approx(direct["rmse_total_n"], rel=1e-5)
+    contact = contact_metrics(expected, truth, sensor.grid.bin_centers_m())
+    assert [(b["frames"], b["detected"]) for b in result.metrics()["contact"]["bands"]] == \
+        [(b["frames"], b["detected"]) for b in contact["bands"]]
+    assert sum(b["frames"] for b in contact["bands"]) + contact["frames_without_load"] == n
     summary = result.summary()
+    assert summary["contact"] == result.metrics()["contact"]
     assert summary["matched_with_ground_truth"] == summary["estimates"] == n
     assert summary["degraded_estimates"] == 0 and summary["missing_camera_ids"] == []
     assert summary["reference_checked"] and summary["off_reference_camera_ids"] == []
@@ -191,7 +196,7 @@ def test_cli_eval_json(sim_bag, model_dir, capsys):
 def test_cli_eval_text(sim_bag, model_dir, capsys):
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch"]) == 0
     out = capsys.readouterr().out
-    assert "averaged into the reference frames" in out and "bin Fz mN" in out
+    assert "averaged into the reference frames" in out and "bin Fz mN" in out and "false contacts" in out
 
 
 def test_cli_eval_without_camera_images(tmp_path, write_bag, sensor, sim_frames, model_dir, capsys):

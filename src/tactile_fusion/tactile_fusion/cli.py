@@ -37,7 +37,7 @@ from tactile_fusion.artifacts import (
 )
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
-from tactile_fusion.metrics import metrics_table
+from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_metrics, contact_table, metrics_table
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
@@ -78,6 +78,16 @@ def _fractions(text: str) -> list[float]:
     if not fractions or not all(0.0 < f <= 1.0 for f in fractions):
         raise SettingsError(f"--fractions must be comma-separated numbers in (0, 1], got {text!r}")
     return fractions
+
+
+def _contact_level(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number of newtons > 0, got {text!r}")
+    return value
 
 
 def _train_config(args) -> TrainConfig:
@@ -162,6 +172,8 @@ def cmd_eval(args) -> int:
     results = {}
     for name, frames in _eval_sets(args, sensor):
         metrics, predicted = evaluate(predictor, frames)
+        metrics["contact"] = contact_metrics(predicted, frames.bin_forces_n, sensor.grid.bin_centers_m(),
+                                             args.contact_level)
         results[name] = metrics
         if args.out:
             slug = name.replace(" ", "_").replace("(", "").replace(")", "")
@@ -177,6 +189,8 @@ def cmd_eval(args) -> int:
         print(json.dumps(report))
     else:
         print(metrics_table(results))
+        print()
+        print(contact_table({name: m["contact"] for name, m in results.items()}))
     return 0
 
 
@@ -339,6 +353,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
     p.add_argument("--out", help="write metrics.json and Fz map PNGs here")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    p.add_argument("--contact-level", type=_contact_level, default=CONTACT_LEVEL_N, metavar="NEWTONS",
+                   help="an estimated total Fz from which a frame counts as reporting contact (default %(default)s)")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("recalibrate", help="train with all cameras but one, add it by retraining the last layers; "

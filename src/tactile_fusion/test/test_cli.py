@@ -68,8 +68,19 @@ def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):
     for key in ("rmse_bin_n", "rmse_total_n"):
         assert len(report[key]) == 3 and all(v >= 0 for v in report[key])
     assert report["data_sets"]["paper_grid test split"]["frames"] == 4
+    contact = report["data_sets"]["paper_grid test split"]["contact"]
+    assert contact["contact_level_n"] == 0.01 and len(contact["bands"]) == 5
+    assert contact["frames_without_load"] + sum(b["frames"] for b in contact["bands"]) == 4
     assert (tmp_path / "metrics.json").is_file()
     assert list(tmp_path.glob("fz_map_*.png"))
+
+
+def test_eval_contact_level_is_checked_before_anything_runs(tiny_model):
+    out, _ = tiny_model
+    result = run("eval", "--model", str(out), "--frames", "4", "--contact-level", "-1", check=False)
+    assert result.returncode == 2 and "--contact-level: must be a number of newtons > 0" in result.stderr
+    result = run("eval", "--model", str(out), "--frames", "4", "--contact-level", "0.5", "--quiet")
+    assert "estimated total Fz >= 500 mN" in result.stdout and "false contacts" in result.stdout
 
 
 def test_eval_prints_a_table_for_a_scene_and_each_precision(tiny_model):

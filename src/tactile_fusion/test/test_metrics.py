@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from tactile_fusion.metrics import force_metrics, metrics_table
+from tactile_fusion.metrics import (
+    CONTACT_LEVEL_N,
+    centre_of_pressure,
+    contact_metrics,
+    contact_table,
+    force_metrics,
+    metrics_table,
+)
 from tactile_fusion.plots import example_frames, least_squares_line, plot_fz_maps, plot_recalibration
 
 
@@ -46,6 +53,70 @@ def test_table_lists_each_data_set_in_millinewtons():
     lines = table.splitlines()
     assert len(lines) == 4 and "bin Fz mN" in lines[0]
     assert lines[2].startswith("paper_grid test split") and "2.000" in lines[2]
+
+
+#: A 3 x 4 grid of 2 mm bins: centres at x = 1, 3, 5, 7 mm and y = 1, 3, 5 mm.
+BIN_CENTERS_M = np.stack(np.meshgrid(np.arange(1, 8, 2) * 1e-3, np.arange(1, 6, 2) * 1e-3), axis=-1)
+
+
+def _fz_frames(*loads):
+    """(N, 3, 4, 3) forces: per frame a dict {(row, col): Fz newtons}."""
+    frames = np.zeros((len(loads), 3, 4, 3))
+    for i, load in enumerate(loads):
+        for (row, col), fz in load.items():
+            frames[i, row, col, 2] = fz
+    return frames
+
+
+def test_contact_is_reported_from_the_contact_level_and_located_by_its_centre_of_pressure():
+    true = _fz_frames({}, {}, {(1, 1): 0.03}, {(1, 1): 0.3}, {(0, 0): 0.4, (2, 3): 0.4}, {(1, 2): 0.6})
+    predicted = _fz_frames({}, {(0, 0): 0.02},   # a surface without load: silent, then a false contact
+                           {(1, 1): 0.005},       # a light press below the level: not reported
+                           {(1, 2): 0.3, (0, 0): -0.1},  # one bin off in x; the negative bin is no pull: ignored
+                           {(0, 0): 0.4, (2, 3): 0.4},   # two contacts: their centre is the middle of the surface
+                           {(1, 2): 0.6, (1, 1): 0.2})   # weighted: a quarter of the way to the next bin
+    m = contact_metrics(predicted, true, BIN_CENTERS_M)
+    assert m["contact_level_n"] == CONTACT_LEVEL_N
+    assert (m["frames_without_load"], m["false_contacts"]) == (2, 1)
+    bands = {tuple(b["load_n"]): b for b in m["bands"]}
+    assert bands[(0.0, 0.05)]["frames"] == 1 and bands[(0.0, 0.05)]["detected"] == 0.0
+    assert bands[(0.0, 0.05)]["centre_error_mm_median"] is None
+    assert bands[(0.05, 0.1)] == {"load_n": [0.05, 0.1], "frames": 0, "detected": None,
+                                  "centre_error_mm_median": None, "centre_error_mm_p95": None}
+    assert bands[(0.2, 0.5)]["frames"] == 1 and bands[(0.2, 0.5)]["detected"] == 1.0
+    assert bands[(0.2, 0.5)]["centre_error_mm_median"] == pytest.approx(2.0)
+    assert bands[(0.5, None)]["frames"] == 2 and bands[(0.5, None)]["detected"] == 1.0
+    assert bands[(0.5, None)]["centre_error_mm_median"] == pytest.approx(0.25)    # median of 0 and 0.5 mm
+    assert bands[(0.5, None)]["centre_error_mm_p95"] == pytest.approx(0.475)
+    assert m["detected_from_n"] == 0.2    # the bands above it with frames are all reported; the one below is not
+    assert contact_metrics(predicted, true, BIN_CENTERS_M, contact_level_n=0.001)["false_contacts"] == 1
+    assert contact_metrics(predicted, true, BIN_CENTERS_M, contact_level_n=1.0)["detected_from_n"] is None
+
+
+def test_centre_of_pressure_of_a_frame_without_load_is_nan_and_a_pull_does_not_count():
+    centre = centre_of_pressure(_fz_frames({}, {(0, 3): -0.5, (2, 0): 0.1})[..., 2], BIN_CENTERS_M)
+    assert np.isnan(centre[0]).all()
+    np.testing.assert_allclose(centre[1], [1e-3, 5e-3])
+
+
+def test_contact_metrics_refuse_a_bad_level_and_mismatched_shapes():
+    frames = _fz_frames({(1, 1): 0.3})
+    for level in (0.0, -0.01, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="contact_level_n"):
+            contact_metrics(frames, frames, BIN_CENTERS_M, contact_level_n=level)
+    with pytest.raises(ValueError, match="do not match"):
+        contact_metrics(frames, frames, BIN_CENTERS_M[:2])
+    with pytest.raises(ValueError, match="do not match"):
+        contact_metrics(frames[:, :2], frames, BIN_CENTERS_M)
+
+
+def test_contact_table_lists_false_contacts_and_each_band():
+    true = _fz_frames({}, {(1, 1): 0.3})
+    m = contact_metrics(_fz_frames({}, {(1, 2): 0.3}), true, BIN_CENTERS_M)
+    lines = contact_table({"paper_grid test split": m}).splitlines()
+    assert "10 mN" in lines[0] and "0.2-0.5 N" in lines[1] and "> 0.5 N" in lines[1]
+    assert lines[3].startswith("paper_grid test split") and "0 of 1" in lines[3]
+    assert "100 % 2.00 mm" in lines[3] and lines[3].rstrip().endswith("0.2 N")
 
 
 def test_least_squares_line_recovers_a_line():
