@@ -116,7 +116,9 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
         params.update(cols=n.count("cols"), rows=n.count("rows"), margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
                       jitter_m=n.number("jitter_mm", 0.0, low=0.0) * MM,
                       depth_m=tuple(v * MM for v in n.span("depth_mm")),
-                      per_position=n.count("depths_per_position"))
+                      per_position=n.count("depths_per_position"),
+                      shear_m=tuple(v * MM for v in n.span("shear_mm")) if n.has("shear_mm") else None,
+                      friction=n.number("friction", 1.0, low=0.0, high=10.0))
         count = params["cols"] * params["rows"] * params["per_position"]
         deepest = params["depth_m"][1]
     elif kind == "random_presses":
@@ -175,7 +177,11 @@ def _contacts(p, rng, grid, n):
 
 def _press_grid(p, rng, grid, n):
     """Grid positions (cell centres of a cols x rows grid inside the margin), each pressed at `per_position` depths:
-    evenly spread over the depth range with a random offset of up to half a step, and a uniform position jitter."""
+    evenly spread over the depth range with a random offset of up to half a step, and a uniform position jitter.
+    With a shear range, each press is then sheared by a magnitude uniform in it, in a uniformly random direction,
+    drawn from a generator spawned from `rng` (which leaves `rng`'s own draws as they are): the sheared grid presses
+    the same places to the same depths as the grid without shear, which draws what it drew before shear existed."""
+    shear_rng = rng.spawn(1)[0] if p["shear_m"] is not None else None
     low, high = p["depth_m"]
     k = p["per_position"]
     step = (high - low) / k
@@ -185,8 +191,13 @@ def _press_grid(p, rng, grid, n):
         for x in xs:
             depths = low + (np.arange(k) + rng.uniform(0.0, 1.0, k)) * step
             jitter = rng.uniform(-p["jitter_m"], p["jitter_m"], (k, 2))
-            for depth, (jx, jy) in zip(depths, jitter, strict=True):
-                yield (Contact(float(x + jx), float(y + jy), float(min(depth, high)), p["shape"]),)
+            shears = np.zeros((k, 2))
+            if shear_rng is not None:
+                magnitude, angle = shear_rng.uniform(*p["shear_m"], k), shear_rng.uniform(0.0, 2.0 * math.pi, k)
+                shears = np.stack([magnitude * np.cos(angle), magnitude * np.sin(angle)], axis=1)
+            for depth, (jx, jy), shear in zip(depths, jitter, shears, strict=True):
+                yield (Contact(float(x + jx), float(y + jy), float(min(depth, high)), p["shape"],
+                               (float(shear[0]), float(shear[1])), p["friction"]),)
 
 
 def _edge_point(region: str, band: tuple[float, float], rng, grid) -> tuple[float, float]:

@@ -9,7 +9,7 @@ from tactile_sim.contact import FlatPunch, Sphere, max_depth_m
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import load_scene, parse_scene, scenes_directory
 
-SHIPPED = ["paper_grid", "edge_corner", "multi_contact", "shear", "effects", "demo"]
+SHIPPED = ["paper_grid", "paper_grid_shear", "edge_corner", "multi_contact", "shear", "effects", "demo"]
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +48,20 @@ def test_paper_grid_is_a_seeded_grid_of_vertical_sphere_presses_up_to_1_5_mm(sen
     again = _all_contacts(load_scene("paper_grid", sensor), sensor)
     assert again == frames                                                            # seeded: reproducible
     assert [e.name for e in scene.effects] == ["sensor_noise"]
+
+
+def test_paper_grid_shear_presses_like_paper_grid_then_shears_each_press_up_to_1_mm_in_any_direction(sensor):
+    def placed(frames):
+        return [[(c.x_m, c.y_m, c.depth_m) for c in contacts] for contacts in frames]
+
+    sheared = _all_contacts(load_scene("paper_grid_shear", sensor), sensor)
+    assert placed(sheared) == placed(_all_contacts(load_scene("paper_grid", sensor), sensor))
+    shear = np.array([c.shear_m for contacts in sheared for c in contacts])
+    magnitude = np.hypot(shear[:, 0], shear[:, 1])
+    assert magnitude.max() <= 1e-3 and magnitude.max() > 0.99e-3 and magnitude.min() < 0.01e-3
+    assert abs(np.median(magnitude) - 0.5e-3) < 0.02e-3                    # uniform over 0-1 mm
+    quadrants = np.histogram(np.arctan2(shear[:, 1], shear[:, 0]), bins=4, range=(-np.pi, np.pi))[0]
+    assert quadrants.min() > 0.23 * len(shear)                              # every direction alike
 
 
 def test_hard_case_scenes_are_what_their_names_say(sensor):
@@ -96,6 +110,8 @@ def _scene(**overrides):
     (_scene(seed="x"), "seed must be an integer"),
     ({"seed": 1, "timeline": [{"rest": {"frames": 1}}]}, "missing key 'name'"),
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": [1.0, 0.5]}}]), "min <= max"),
+    (_scene(timeline=[{"press_grid": {"cols": 1, "rows": 1, "depth_mm": [0.1, 0.2], "depths_per_position": 1,
+                                      "shear_mm": [1.0, 0.5]}}]), "shear_mm.*min <= max"),
 ])
 def test_bad_scenes_get_clear_errors(raw, message):
     with pytest.raises(SceneError, match=message):
