@@ -2,14 +2,15 @@
 
     tactile-fusion train --out DIR [--scene paper_grid | --dataset DIR] [--frames N] [--epochs N] ...
     tactile-fusion eval [--model DIR] [--backend onnxruntime|torch] [--precision fp32|int8|fp16]
-                        [--scene NAME | --dataset DIR] [--hard-cases] [--out DIR] [--json]
+                        [--scene NAME [--split all|test] | --dataset DIR] [--hard-cases] [--out DIR] [--json]
     tactile-fusion recalibrate --out DIR [--add-camera ID] [--fractions 0.1,0.2,...]
                                [--recalibration-epochs N] [training options]
     tactile-fusion export [--model DIR] [--fit-threshold] [--measure]
     tactile-fusion bench [--model DIR] [--runs N] [--json]
 
 Without --model, eval, export and bench use the shipped model (models/default); without --scene or --dataset,
-eval uses the default test set: the held-out 20 % of the default scene, simulated again from its seed.
+eval uses the model's test set: the held-out 20 % of the data it was trained on (training.json), for a scene
+simulated again from its seed; for the shipped model the default test set, that of the default scene.
 """
 
 from __future__ import annotations
@@ -144,16 +145,21 @@ def cmd_train(args) -> int:
     return 0
 
 
-def _eval_sets(args, sensor) -> list[tuple[str, object]]:
-    from tactile_fusion.pipeline import DEFAULT_SCENE, HARD_CASE_SCENES, scene_frames
+def _eval_sets(args, sensor, model_dir: Path) -> list[tuple[str, object]]:
+    from tactile_fusion.pipeline import HARD_CASE_SCENES, held_out_split, scene_frames
 
     progress = not (args.json or args.quiet)
     if args.dataset:
         sets = [(f"dataset {Path(args.dataset).name}", load_dataset_frames(args.dataset, sensor))]
+    elif args.scene and args.split == "test":
+        sets = [(f"{args.scene} test split", scene_frames(sensor, args.scene, "test", args.frames, progress))]
     elif args.scene:
         sets = [(f"{args.scene} (all)", scene_frames(sensor, args.scene, frames=args.frames, progress=progress))]
     else:
-        sets = [(f"{DEFAULT_SCENE} test split", scene_frames(sensor, DEFAULT_SCENE, "test", args.frames, progress))]
+        test, source, note = held_out_split(model_dir, sensor, "test", args.frames, progress)
+        if note and not (args.json or args.quiet):
+            print(f"evaluating on the {source} test split{note}")
+        sets = [(f"{source.removeprefix('scene ')} test split", test)]
     if args.hard_cases:
         sets += [(name, scene_frames(sensor, name, frames=args.frames, progress=progress))
                  for name in HARD_CASE_SCENES]
@@ -170,7 +176,7 @@ def cmd_eval(args) -> int:
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
     check_model_fits(predictor, sensor)
     results = {}
-    for name, frames in _eval_sets(args, sensor):
+    for name, frames in _eval_sets(args, sensor, model_dir):
         metrics, predicted = evaluate(predictor, frames)
         metrics["contact"] = contact_metrics(predicted, frames.bin_forces_n, sensor.grid.bin_centers_m(),
                                              args.contact_level)
@@ -347,7 +353,10 @@ def build_parser() -> argparse.ArgumentParser:
     common(p, True)
     p.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
     p.add_argument("--precision", choices=PRECISIONS, default="fp32")
-    p.add_argument("--scene", help="evaluate on every frame of this scene (name or YAML file)")
+    p.add_argument("--scene", help="evaluate on every frame of this scene (name or YAML file) instead of the test "
+                   "split of the model's training data")
+    p.add_argument("--split", choices=["all", "test"], default="all",
+                   help="with --scene: every frame, or its held-out 20 %% drawn from its seed (default %(default)s)")
     p.add_argument("--dataset", help="evaluate on every frame of this dataset")
     p.add_argument("--frames", type=int, help="only the first N frames")
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")

@@ -246,9 +246,11 @@ def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription,
     return report
 
 
-def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "test") -> tuple[FrameSet, str, str]:
-    """The `split` ("test" or "val") of the data a model was trained on, that data ("scene NAME" or "dataset PATH",
-    as training.json says) and a note on where it came from ("" or why the default scene).
+def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "test", frames: int | None = None,
+                   progress: bool = False) -> tuple[FrameSet, str, str]:
+    """The `split` ("test" or "val") of the data a model was trained on (its first `frames` when given), that data
+    ("scene NAME" or "dataset PATH", as training.json says) and a note on where it came from ("" or why the default
+    scene).
 
     The split `train_and_export` made of the data that training.json names (a scene, or a dataset). A model
     directory without training.json gets the default scene's split (and says so); one whose training data cannot be
@@ -268,6 +270,6 @@ def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "tes
     except (OSError, SceneError, DatasetError, DatasetMismatchError) as exc:
         raise ModelFileError(f"{record} says the model was trained on {kind} {name}, which cannot be read here "
                              f"({exc}); its {split} split is needed") from exc
-    picks = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)[split]
-    frames = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks)
-    return frames, f"{kind} {name}", note
+    picks = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)[split][:frames]
+    held_out = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks, progress=progress)
+    return held_out, f"{kind} {name}", note

@@ -75,6 +75,25 @@ def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):
     assert list(tmp_path.glob("fz_map_*.png"))
 
 
+def test_eval_measures_a_model_on_the_test_split_of_its_own_training_scene(tmp_path):
+    """Without --scene, a model trained on another scene than the default is evaluated on that scene's held-out
+    frames: those its metrics.json was measured on."""
+    out = tmp_path / "model"
+    run("train", "--scene", "shear", "--frames", "60", "--epochs", "1", "--head-epochs", "1", "--head-cycles", "1",
+        "--threads", "1", "--out", str(out), *TINY)
+    report = json.loads(run("eval", "--model", str(out), "--json").stdout)
+    assert list(report["data_sets"]) == ["shear test split"]
+    recorded = json.loads((out / METRICS_JSON).read_text())["backends"]["onnxruntime_fp32"]
+    assert report["data_sets"]["shear test split"]["frames"] == recorded["frames"] == 12
+    assert report["rmse_bin_n"] == pytest.approx(recorded["rmse_bin_n"], rel=1e-6)
+    assert report["rmse_total_n"] == pytest.approx(recorded["rmse_total_n"], rel=1e-6)
+    # Another scene's test split: that of the whole scene, drawn from its seed.
+    report = json.loads(run("eval", "--model", str(out), "--scene", "paper_grid", "--split", "test", "--frames", "3",
+                            "--json").stdout)
+    assert list(report["data_sets"]) == ["paper_grid test split"]
+    assert report["data_sets"]["paper_grid test split"]["frames"] == 3
+
+
 def test_eval_contact_level_is_checked_before_anything_runs(tiny_model):
     out, _ = tiny_model
     result = run("eval", "--model", str(out), "--frames", "4", "--contact-level", "-1", check=False)
