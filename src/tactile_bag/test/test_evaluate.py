@@ -58,8 +58,8 @@ def test_estimates_are_the_predictors_against_the_mean_of_the_first_bundles(sim_
     assert result.metrics()["rmse_bin_n"] == pytest.approx(direct["rmse_bin_n"], rel=1e-5)
     assert result.metrics()["rmse_total_n"] == pytest.approx(direct["rmse_total_n"], rel=1e-5)
     contact = contact_metrics(expected, truth, sensor.grid.bin_centers_m())
-    assert [(b["frames"], b["detected"]) for b in result.metrics()["contact"]["bands"]] == \
-        [(b["frames"], b["detected"]) for b in contact["bands"]]
+    assert [(b["frames"], b["reported_share"]) for b in result.metrics()["contact"]["bands"]] == \
+        [(b["frames"], b["reported_share"]) for b in contact["bands"]]
     assert sum(b["frames"] for b in contact["bands"]) + contact["frames_without_load"] == n
     summary = result.summary()
     assert summary["contact"] == result.metrics()["contact"]

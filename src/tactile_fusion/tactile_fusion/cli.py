@@ -81,6 +81,16 @@ def _fractions(text: str) -> list[float]:
     return fractions
 
 
+def _frame_count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number of frames >= 1, got {text!r}")
+    return value
+
+
 def _contact_level(text: str) -> float:
     try:
         value = float(text)
@@ -115,7 +125,7 @@ def _further_draws(args, sensor):
 
 
 def cmd_train(args) -> int:
-    from tactile_fusion.pipeline import train_and_export, training_splits
+    from tactile_fusion.pipeline import scene_source, train_and_export, training_splits
 
     _threads(args)
     sensor = load_sensor(args.sensor)
@@ -124,10 +134,7 @@ def cmd_train(args) -> int:
     head_extra = _further_draws(args, sensor)
     splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
-    if args.dataset:
-        source = f"dataset {Path(args.dataset).resolve()}"
-    else:
-        source = f"scene {Path(args.scene).resolve() if Path(args.scene).is_file() else args.scene}"
+    source = f"dataset {Path(args.dataset).resolve()}" if args.dataset else scene_source(args.scene)
     metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
                                progress=not args.quiet, threads=args.threads, data_source=source, head_extra=head_extra)
     print(metrics_table({f"{splits['test'].scene} test ({b})": m for b, m in metrics["backends"].items()}))
@@ -146,20 +153,27 @@ def cmd_train(args) -> int:
 
 
 def _eval_sets(args, sensor, model_dir: Path) -> list[tuple[str, object]]:
-    from tactile_fusion.pipeline import HARD_CASE_SCENES, held_out_split, scene_frames
+    """(name, frames) of each data set to evaluate on: the test split of the model's training data unless --scene
+    or --dataset says otherwise (a scene's test split that of the model's when it was trained on that scene)."""
+    from tactile_fusion.pipeline import HARD_CASE_SCENES, held_out_split, scene_frames, scene_source, training_source
 
+    if args.split is not None and not args.scene:
+        raise SettingsError("--split applies to --scene only (a --dataset is evaluated whole; without either, eval "
+                            "takes the test split of the model's training data)")
     progress = not (args.json or args.quiet)
     if args.dataset:
         sets = [(f"dataset {Path(args.dataset).name}", load_dataset_frames(args.dataset, sensor))]
-    elif args.scene and args.split == "test":
-        sets = [(f"{args.scene} test split", scene_frames(sensor, args.scene, "test", args.frames, progress))]
-    elif args.scene:
-        sets = [(f"{args.scene} (all)", scene_frames(sensor, args.scene, frames=args.frames, progress=progress))]
+    elif args.scene and args.split != "test":
+        frames = scene_frames(sensor, args.scene, frames=args.frames, progress=progress)
+        sets = [(f"{frames.scene} (all)", frames)]
+    elif args.scene and training_source(model_dir) != scene_source(args.scene):
+        frames = scene_frames(sensor, args.scene, "test", args.frames, progress)
+        sets = [(f"{frames.scene} test split", frames)]
     else:
         test, source, note = held_out_split(model_dir, sensor, "test", args.frames, progress)
         if note and not (args.json or args.quiet):
             print(f"evaluating on the {source} test split{note}")
-        sets = [(f"{source.removeprefix('scene ')} test split", test)]
+        sets = [(f"{test.scene} test split", test)]
     if args.hard_cases:
         sets += [(name, scene_frames(sensor, name, frames=args.frames, progress=progress))
                  for name in HARD_CASE_SCENES]
@@ -182,7 +196,7 @@ def cmd_eval(args) -> int:
                                              args.contact_level)
         results[name] = metrics
         if args.out:
-            slug = name.replace(" ", "_").replace("(", "").replace(")", "")
+            slug = name.replace(" ", "_").replace("/", "_").replace("(", "").replace(")", "")
             plot_fz_maps(frames.bin_forces_n, predicted, Path(args.out) / f"fz_map_{slug}.png",
                          f"{name}: Fz per bin ({args.backend} {args.precision})")
     first = next(iter(results.values()))
@@ -276,7 +290,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", default="paper_grid", help="scene name or YAML file to simulate (default "
                         "%(default)s)")
     parser.add_argument("--dataset", help="train on a dataset written by `tactile-sim generate` instead")
-    parser.add_argument("--frames", type=int, help="use only the first N frames of the scene or dataset")
+    parser.add_argument("--frames", type=_frame_count, help="use only the first N frames of the scene or dataset")
     parser.add_argument("--epochs", type=int, default=train.max_epochs,
                         help="at most this many end-to-end epochs (default %(default)s, sized for the default scene's "
                         "32340 training frames: scale it for a smaller or larger data set)")
@@ -353,12 +367,12 @@ def build_parser() -> argparse.ArgumentParser:
     common(p, True)
     p.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
     p.add_argument("--precision", choices=PRECISIONS, default="fp32")
-    p.add_argument("--scene", help="evaluate on every frame of this scene (name or YAML file) instead of the test "
-                   "split of the model's training data")
-    p.add_argument("--split", choices=["all", "test"], default="all",
-                   help="with --scene: every frame, or its held-out 20 %% drawn from its seed (default %(default)s)")
+    p.add_argument("--scene", help="evaluate on this scene (name or YAML file) instead of the test split of the "
+                   "model's training data")
+    p.add_argument("--split", choices=["all", "test"],
+                   help="with --scene: every frame (the default), or its held-out 20 %% drawn from its seed")
     p.add_argument("--dataset", help="evaluate on every frame of this dataset")
-    p.add_argument("--frames", type=int, help="only the first N frames")
+    p.add_argument("--frames", type=_frame_count, help="only the first N frames")
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
     p.add_argument("--out", help="write metrics.json and Fz map PNGs here")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")

@@ -19,8 +19,10 @@ COMPONENTS = ("Fx", "Fy", "Fz")
 CONTACT_LEVEL_N = 0.01
 #: Loads (true total Fz, newtons) that contact detection is reported by: (0, 0.05], (0.05, 0.1], ... (0.5, inf).
 LOAD_BAND_EDGES_N = (0.0, 0.05, 0.1, 0.2, 0.5, float("inf"))
-#: The share of a band's frames that must be reported for the band to count as detected (`detected_from_n`).
+#: The share of a band's frames that must be reported for the band to count as detected (`detected_from_n`) ...
 DETECTED_SHARE = 0.9
+#: ... and the frames a band needs for that judgement; a band with fewer is passed over.
+MIN_BAND_FRAMES = 10
 
 
 def force_metrics(predicted_n: np.ndarray, true_n: np.ndarray) -> dict:
@@ -83,10 +85,9 @@ def contact_metrics(predicted_n: np.ndarray, true_n: np.ndarray, bin_centers_m: 
 
     A frame is reported as in contact when its estimated total Fz reaches `contact_level_n`. Returns
     contact_level_n; frames_without_load and false_contacts (those of them reported); bands, one per load band
-    (`LOAD_BAND_EDGES_N`, on the true total Fz) with its frames, the share reported ("detected", None for an empty
-    band) and the distance between estimated and true centre of pressure over the frames reported, median and
-    95th percentile in mm (None where none was reported); detected_from_n, the lower edge of the lowest band from
-    which every band with frames has at least `DETECTED_SHARE` reported (None if the highest does not).
+    (`LOAD_BAND_EDGES_N`, on the true total Fz) with its frames, the share of them reported (reported_share, None
+    for an empty band) and the distance between estimated and true centre of pressure over the frames reported,
+    median and 95th percentile in mm (None where none was reported); detected_from_n (`detection_limit`).
     """
     if not (np.isfinite(contact_level_n) and contact_level_n > 0):
         raise ValueError(f"contact_metrics: contact_level_n must be a finite number > 0 (newtons), got "
@@ -96,6 +97,8 @@ def contact_metrics(predicted_n: np.ndarray, true_n: np.ndarray, bin_centers_m: 
     if predicted_fz.shape != true_fz.shape or tuple(np.shape(bin_centers_m)) != true_fz.shape[1:] + (2,):
         raise ValueError(f"contact_metrics: predictions {np.shape(predicted_n)}, ground truth {np.shape(true_n)} and "
                          f"bin centres {np.shape(bin_centers_m)} do not match")
+    if not (np.isfinite(predicted_fz).all() and np.isfinite(true_fz).all()):
+        raise ValueError("contact_metrics: predictions or ground truth contain NaN or Inf")
     true_load = true_fz.sum(axis=(1, 2))
     reported = predicted_fz.sum(axis=(1, 2)) >= contact_level_n
     unloaded = true_load <= 0.0
@@ -103,19 +106,32 @@ def contact_metrics(predicted_n: np.ndarray, true_n: np.ndarray, bin_centers_m: 
                                      - centre_of_pressure(true_fz, bin_centers_m), axis=1)
     bands = []
     for low, high in zip(LOAD_BAND_EDGES_N[:-1], LOAD_BAND_EDGES_N[1:], strict=True):
-        in_band = ~unloaded & (true_load > low) & (true_load <= high)
+        in_band = (true_load > low) & (true_load <= high)
         located = offset_mm[in_band & reported]
         bands.append({"load_n": [low, high if np.isfinite(high) else None], "frames": int(in_band.sum()),
-                      "detected": float(reported[in_band].mean()) if in_band.any() else None,
+                      "reported_share": float(reported[in_band].mean()) if in_band.any() else None,
                       "centre_error_mm_median": float(np.median(located)) if located.size else None,
                       "centre_error_mm_p95": float(np.percentile(located, 95)) if located.size else None})
-    detected_from = None
-    for band in reversed([b for b in bands if b["frames"]]):
-        if band["detected"] < DETECTED_SHARE:
-            break
-        detected_from = band["load_n"][0]
     return {"contact_level_n": float(contact_level_n), "frames_without_load": int(unloaded.sum()),
-            "false_contacts": int((reported & unloaded).sum()), "bands": bands, "detected_from_n": detected_from}
+            "false_contacts": int((reported & unloaded).sum()), "bands": bands,
+            "detected_from_n": detection_limit(bands)}
+
+
+def detection_limit(bands: list[dict]) -> float | None:
+    """The load from which presses are reported: the lower edge of the lightest of the heaviest bands that are all
+    reported in at least `DETECTED_SHARE` of their frames, judged on bands of at least `MIN_BAND_FRAMES` frames.
+
+    Only where the data show it: a lighter judged band that falls short, or the lightest band of all passing (then
+    0, any load). Data without light presses (every judged band passes, the lightest judged one above 0) give None,
+    as does data whose heaviest judged band falls short.
+    """
+    judged = [b for b in bands if b["frames"] >= MIN_BAND_FRAMES]
+    limit = None
+    for band in reversed(judged):
+        if band["reported_share"] < DETECTED_SHARE:
+            return limit
+        limit = band["load_n"][0]
+    return limit if limit == 0.0 else None
 
 
 def contact_table(rows: dict[str, dict]) -> str:
@@ -130,11 +146,12 @@ def contact_table(rows: dict[str, dict]) -> str:
     for name, m in rows.items():
         cells = []
         for band in m["bands"]:
-            if band["detected"] is None:
+            if band["reported_share"] is None:
                 cells.append("-")
             else:
                 median = band["centre_error_mm_median"]
-                cells.append(f"{100 * band['detected']:.0f} %" + (f" {median:.2f} mm" if median is not None else ""))
+                cells.append(f"{100 * band['reported_share']:.0f} %"
+                             + (f" {median:.2f} mm" if median is not None else ""))
         false = f"{m['false_contacts']} of {m['frames_without_load']}"
         detected_from = f"{m['detected_from_n']:g} N" if m["detected_from_n"] is not None else "-"
         lines.append(f"{name:<36}{false:>16}" + "".join(f"{c:>16}" for c in cells) + f"{detected_from:>15}")

@@ -246,6 +246,19 @@ def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription,
     return report
 
 
+def scene_source(scene: str) -> str:
+    """How training.json names a scene: "scene NAME" for an installed scene, "scene PATH" (absolute) for a file, so
+    that `export` and `eval` find the same data from anywhere."""
+    return f"scene {Path(scene).resolve() if Path(scene).is_file() else scene}"
+
+
+def training_source(model_dir: Path) -> str | None:
+    """What the model was trained on, as its training.json says ("scene NAME", "scene PATH" or "dataset PATH"); None
+    without training.json."""
+    record = model_dir / TRAINING_JSON
+    return json.loads(record.read_text()).get("data", {}).get("source") if record.exists() else None
+
+
 def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "test", frames: int | None = None,
                    progress: bool = False) -> tuple[FrameSet, str, str]:
     """The `split` ("test" or "val") of the data a model was trained on (its first `frames` when given), that data

@@ -94,11 +94,21 @@ def test_eval_measures_a_model_on_the_test_split_of_its_own_training_scene(tmp_p
     assert report["data_sets"]["paper_grid test split"]["frames"] == 3
 
 
-def test_eval_contact_level_is_checked_before_anything_runs(tiny_model):
+def test_eval_contact_level_and_frames_are_checked_before_anything_runs(tiny_model):
     out, _ = tiny_model
     result = run("eval", "--model", str(out), "--frames", "4", "--contact-level", "-1", check=False)
     assert result.returncode == 2 and "--contact-level: must be a number of newtons > 0" in result.stderr
-    result = run("eval", "--model", str(out), "--frames", "4", "--contact-level", "0.5", "--quiet")
+    result = run("eval", "--model", str(out), "--frames", "-4", check=False)
+    assert result.returncode == 2 and "--frames: must be a whole number of frames >= 1" in result.stderr
+    result = run("eval", "--model", str(out), "--frames", "4", "--split", "test", check=False)
+    assert result.returncode == 2 and "--split applies to --scene only" in result.stderr
+    # Presses (the shear scene's first four frames), reported from the level asked for.
+    report = json.loads(run("eval", "--model", str(out), "--scene", "shear", "--frames", "4", "--contact-level", "0.5",
+                            "--json").stdout)
+    contact = report["data_sets"]["shear (all)"]["contact"]
+    assert contact["contact_level_n"] == 0.5 and contact["frames_without_load"] == 0
+    assert sum(band["frames"] for band in contact["bands"]) == 4
+    result = run("eval", "--model", str(out), "--scene", "shear", "--frames", "4", "--contact-level", "0.5", "--quiet")
     assert "estimated total Fz >= 500 mN" in result.stdout and "false contacts" in result.stdout
 
 

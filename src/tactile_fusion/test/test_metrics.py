@@ -5,9 +5,11 @@ import pytest
 
 from tactile_fusion.metrics import (
     CONTACT_LEVEL_N,
+    LOAD_BAND_EDGES_N,
     centre_of_pressure,
     contact_metrics,
     contact_table,
+    detection_limit,
     force_metrics,
     metrics_table,
 )
@@ -79,18 +81,35 @@ def test_contact_is_reported_from_the_contact_level_and_located_by_its_centre_of
     assert m["contact_level_n"] == CONTACT_LEVEL_N
     assert (m["frames_without_load"], m["false_contacts"]) == (2, 1)
     bands = {tuple(b["load_n"]): b for b in m["bands"]}
-    assert bands[(0.0, 0.05)]["frames"] == 1 and bands[(0.0, 0.05)]["detected"] == 0.0
+    assert bands[(0.0, 0.05)]["frames"] == 1 and bands[(0.0, 0.05)]["reported_share"] == 0.0
     assert bands[(0.0, 0.05)]["centre_error_mm_median"] is None
-    assert bands[(0.05, 0.1)] == {"load_n": [0.05, 0.1], "frames": 0, "detected": None,
+    assert bands[(0.05, 0.1)] == {"load_n": [0.05, 0.1], "frames": 0, "reported_share": None,
                                   "centre_error_mm_median": None, "centre_error_mm_p95": None}
-    assert bands[(0.2, 0.5)]["frames"] == 1 and bands[(0.2, 0.5)]["detected"] == 1.0
+    assert bands[(0.2, 0.5)]["frames"] == 1 and bands[(0.2, 0.5)]["reported_share"] == 1.0
     assert bands[(0.2, 0.5)]["centre_error_mm_median"] == pytest.approx(2.0)
-    assert bands[(0.5, None)]["frames"] == 2 and bands[(0.5, None)]["detected"] == 1.0
+    assert bands[(0.5, None)]["frames"] == 2 and bands[(0.5, None)]["reported_share"] == 1.0
     assert bands[(0.5, None)]["centre_error_mm_median"] == pytest.approx(0.25)    # median of 0 and 0.5 mm
     assert bands[(0.5, None)]["centre_error_mm_p95"] == pytest.approx(0.475)
-    assert m["detected_from_n"] == 0.2    # the bands above it with frames are all reported; the one below is not
+    assert m["detected_from_n"] is None   # bands of one or two frames are too few to judge
     assert contact_metrics(predicted, true, BIN_CENTERS_M, contact_level_n=0.001)["false_contacts"] == 1
-    assert contact_metrics(predicted, true, BIN_CENTERS_M, contact_level_n=1.0)["detected_from_n"] is None
+    assert contact_metrics(predicted, true, BIN_CENTERS_M, contact_level_n=1.0)["bands"][-1]["reported_share"] == 0.0
+
+
+def _bands(*judged):
+    """Bands from the lightest: (reported share, frames) each."""
+    return [{"load_n": [low, high], "frames": frames, "reported_share": share}
+            for (share, frames), low, high in zip(judged, LOAD_BAND_EDGES_N[:-1], LOAD_BAND_EDGES_N[1:], strict=True)]
+
+
+def test_detection_limit_is_given_only_where_the_data_show_it():
+    # The shipped model's test split: reported from 0.2 N.
+    assert detection_limit(_bands((0.06, 387), (0.41, 503), (0.89, 804), (1.0, 1601), (1.0, 5924))) == 0.2
+    assert detection_limit(_bands((0.9, 10), (0.95, 20), (1.0, 30), (1.0, 40), (1.0, 50))) == 0.0  # any load
+    # No light presses in the data, or the miss in a band too small to judge: not shown.
+    assert detection_limit(_bands((None, 0), (None, 0), (None, 0), (1.0, 100), (1.0, 100))) is None
+    assert detection_limit(_bands((0.0, 9), (1.0, 100), (1.0, 100), (1.0, 100), (1.0, 100))) is None
+    assert detection_limit(_bands((0.0, 50), (0.5, 9), (1.0, 100), (0.95, 100), (0.5, 100))) is None  # heaviest short
+    assert detection_limit(_bands((0.0, 50), (0.5, 9), (0.95, 100), (1.0, 100), (1.0, 100))) == 0.1  # 9 passed over
 
 
 def test_centre_of_pressure_of_a_frame_without_load_is_nan_and_a_pull_does_not_count():
@@ -99,8 +118,11 @@ def test_centre_of_pressure_of_a_frame_without_load_is_nan_and_a_pull_does_not_c
     np.testing.assert_allclose(centre[1], [1e-3, 5e-3])
 
 
-def test_contact_metrics_refuse_a_bad_level_and_mismatched_shapes():
+def test_contact_metrics_refuse_a_bad_level_mismatched_shapes_and_non_finite_forces():
     frames = _fz_frames({(1, 1): 0.3})
+    for bad in (np.inf, np.nan):
+        with pytest.raises(ValueError, match="NaN or Inf"):
+            contact_metrics(_fz_frames({(1, 1): bad}), frames, BIN_CENTERS_M)
     for level in (0.0, -0.01, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="contact_level_n"):
             contact_metrics(frames, frames, BIN_CENTERS_M, contact_level_n=level)
@@ -116,7 +138,9 @@ def test_contact_table_lists_false_contacts_and_each_band():
     lines = contact_table({"paper_grid test split": m}).splitlines()
     assert "10 mN" in lines[0] and "0.2-0.5 N" in lines[1] and "> 0.5 N" in lines[1]
     assert lines[3].startswith("paper_grid test split") and "0 of 1" in lines[3]
-    assert "100 % 2.00 mm" in lines[3] and lines[3].rstrip().endswith("0.2 N")
+    assert "100 % 2.00 mm" in lines[3] and lines[3].rstrip().endswith("-")  # one press: no detection limit shown
+    m["detected_from_n"] = 0.2
+    assert contact_table({"paper_grid test split": m}).splitlines()[3].rstrip().endswith("0.2 N")
 
 
 def test_least_squares_line_recovers_a_line():

@@ -191,13 +191,17 @@ def _press_grid(p, rng, grid, n):
         for x in xs:
             depths = low + (np.arange(k) + rng.uniform(0.0, 1.0, k)) * step
             jitter = rng.uniform(-p["jitter_m"], p["jitter_m"], (k, 2))
-            shears = np.zeros((k, 2))
+            magnitudes, angles = np.zeros(k), np.zeros(k)
             if shear_rng is not None:
-                magnitude, angle = shear_rng.uniform(*p["shear_m"], k), shear_rng.uniform(0.0, 2.0 * math.pi, k)
-                shears = np.stack([magnitude * np.cos(angle), magnitude * np.sin(angle)], axis=1)
-            for depth, (jx, jy), shear in zip(depths, jitter, shears, strict=True):
+                magnitudes, angles = shear_rng.uniform(*p["shear_m"], k), shear_rng.uniform(0.0, 2.0 * math.pi, k)
+            for depth, (jx, jy), magnitude, angle in zip(depths, jitter, magnitudes, angles, strict=True):
                 yield (Contact(float(x + jx), float(y + jy), float(min(depth, high)), p["shape"],
-                               (float(shear[0]), float(shear[1])), p["friction"]),)
+                               _shear(float(magnitude), float(angle)), p["friction"]),)
+
+
+def _shear(magnitude: float, angle: float) -> tuple[float, float]:
+    """The tangential displacement (x, y) of `magnitude` metres in direction `angle` (radians from +x)."""
+    return magnitude * math.cos(angle), magnitude * math.sin(angle)
 
 
 def _edge_point(region: str, band: tuple[float, float], rng, grid) -> tuple[float, float]:
@@ -233,8 +237,8 @@ def _random_presses(p, rng, grid, n):
                 continue
             magnitude = float(rng.uniform(*p["shear_m"]))
             angle = float(rng.uniform(0.0, 2.0 * math.pi))
-            contacts.append(Contact(x, y, float(rng.uniform(*p["depth_m"])), p["shape"],
-                                    (magnitude * math.cos(angle), magnitude * math.sin(angle)), p["friction"]))
+            contacts.append(Contact(x, y, float(rng.uniform(*p["depth_m"])), p["shape"], _shear(magnitude, angle),
+                                    p["friction"]))
         yield tuple(contacts)
 
 
