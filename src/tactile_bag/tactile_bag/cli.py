@@ -24,7 +24,7 @@ from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
-from tactile_fusion.metrics import contact_table, metrics_table
+from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, contact_table, metrics_table
 
 USAGE_ERROR = 2
 
@@ -69,7 +69,7 @@ def cmd_eval(args) -> int:
     predictor = load_predictor(args.model, args.backend)
     truth_topic = absolute_topic(args.truth_topic) if args.truth_topic else GROUND_TRUTH_TOPIC
     result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
-                          truth_topic if args.truth_topic else None)
+                          truth_topic if args.truth_topic else None, contact_level_n=args.contact_level)
     summary = result.summary()
     if args.json:
         print(json.dumps(summary))
@@ -151,6 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--truth-topic", default=None,
                     help=f"ground truth topic; it must be in the bag (default {GROUND_TRUTH_TOPIC}, if there)")
     ev.add_argument("--json", action="store_true", help="print one JSON object")
+    ev.add_argument("--contact-level", type=contact_level_argument, default=CONTACT_LEVEL_N, metavar="NEWTONS",
+                    help="an estimated total Fz from which an estimate counts as reporting contact (default "
+                    "%(default)s)")
     ev.set_defaults(run=cmd_eval)
     return parser
 

@@ -36,7 +36,7 @@ from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.artifacts import check_model_fits
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ReferenceFrames, ReferenceMatch
-from tactile_fusion.metrics import contact_metrics, force_metrics
+from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_metrics, force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 if TYPE_CHECKING:  # the model stack (torch, onnxruntime) takes seconds to import: only the caller loads it
@@ -75,6 +75,7 @@ class BagEvaluation:
     truth_n: np.ndarray             # (M, rows, cols, 3) float32, every ground truth message of the bag
     bin_centers_m: np.ndarray       # (rows, cols, 2) of the sensor's bins, for the centre of pressure
     skipped: dict[str, int] = field(default_factory=dict)  # why images or bundles were not used, with counts
+    contact_level_n: float = CONTACT_LEVEL_N  # estimated total Fz from which an estimate reports contact
 
     @property
     def matched(self) -> np.ndarray:
@@ -86,7 +87,8 @@ class BagEvaluation:
         if not self.matched.any():
             return None
         estimates, truth = self.estimates_n[self.matched], self.truth_n[self.truth_index[self.matched]]
-        return force_metrics(estimates, truth) | {"contact": contact_metrics(estimates, truth, self.bin_centers_m)}
+        return force_metrics(estimates, truth) | {"contact": contact_metrics(estimates, truth, self.bin_centers_m,
+                                                                             self.contact_level_n)}
 
     def summary(self) -> dict:
         totals = self.estimates_n.astype(np.float64).sum(axis=(1, 2))
@@ -251,10 +253,12 @@ def check_predictor(predictor: ForcePredictor, sensor: SensorDescription) -> Non
 
 def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePredictor, source: str = "auto",
                  reference_bundles: int = REFERENCE_BUNDLES, truth_topic: str | None = None,
-                 match_tolerance_s: float = MATCH_TOLERANCE_S) -> BagEvaluation:
+                 match_tolerance_s: float = MATCH_TOLERANCE_S,
+                 contact_level_n: float = CONTACT_LEVEL_N) -> BagEvaluation:
     """Estimate the force of every bundle of the bag after the reference ones and match the ground truth.
 
     truth_topic: None for the simulator's (optional in the bag); a topic named here must be in the bag.
+    contact_level_n: the estimated total Fz from which an estimate reports contact (metrics' "contact").
     """
     check_predictor(predictor, sensor)
     with BagReader(path) as bag:
@@ -306,4 +310,5 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         off_reference=(np.array(off_reference, bool).reshape(len(stamps), sensor.n_cameras) if match is not None
                        else None),
         truth_messages=len(truth_stamps), truth_index=match_stamps(stamps_s, truth_stamps, match_tolerance_s),
-        truth_n=truth, bin_centers_m=sensor.grid.bin_centers_m(), skipped=reader.skipped)
+        truth_n=truth, bin_centers_m=sensor.grid.bin_centers_m(), skipped=reader.skipped,
+        contact_level_n=contact_level_n)

@@ -191,6 +191,17 @@ def test_cli_eval_json(sim_bag, model_dir, capsys):
     assert summary["reference_bundles"] == 5
     assert summary["matched_with_ground_truth"] == summary["estimates"] >= 34
     assert len(summary["rmse_bin_n"]) == len(summary["rmse_total_n"]) == 3
+    assert summary["contact"]["contact_level_n"] == 0.01
+
+
+def test_cli_eval_contact_level(sim_bag, model_dir, capsys):
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--json",
+                 "--contact-level", "0.5"]) == 0
+    assert json.loads(capsys.readouterr().out)["contact"]["contact_level_n"] == 0.5
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", str(sim_bag), "--model", str(model_dir), "--contact-level", "nan"])
+    assert exit_info.value.code == 2
+    assert "--contact-level: must be a number of newtons > 0, got 'nan'" in capsys.readouterr().err
 
 
 def test_cli_eval_text(sim_bag, model_dir, capsys):

@@ -38,7 +38,13 @@ from tactile_fusion.artifacts import (
 )
 from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
-from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_metrics, contact_table, metrics_table
+from tactile_fusion.metrics import (
+    CONTACT_LEVEL_N,
+    contact_level_argument,
+    contact_metrics,
+    contact_table,
+    metrics_table,
+)
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
@@ -88,16 +94,6 @@ def _frame_count(text: str) -> int:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a whole number of frames >= 1, got {text!r}")
-    return value
-
-
-def _contact_level(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (value > 0 and value != float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a number of newtons > 0, got {text!r}")
     return value
 
 
@@ -376,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
     p.add_argument("--out", help="write metrics.json and Fz map PNGs here")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
-    p.add_argument("--contact-level", type=_contact_level, default=CONTACT_LEVEL_N, metavar="NEWTONS",
+    p.add_argument("--contact-level", type=contact_level_argument, default=CONTACT_LEVEL_N, metavar="NEWTONS",
                    help="an estimated total Fz from which a frame counts as reporting contact (default %(default)s)")
     p.set_defaults(func=cmd_eval)
 

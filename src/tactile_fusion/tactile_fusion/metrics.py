@@ -12,6 +12,8 @@ lies from the true one.
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 COMPONENTS = ("Fx", "Fy", "Fz")
@@ -132,6 +134,18 @@ def detection_limit(bands: list[dict]) -> float | None:
             return limit
         limit = band["load_n"][0]
     return limit if limit == 0.0 else None
+
+
+def contact_level_argument(text: str) -> float:
+    """`--contact-level NEWTONS` of `tactile-fusion eval` and `tactile-bag eval` (an argparse type): a finite
+    number > 0, so that a bad value is refused before any evaluation runs."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a number of newtons > 0, got {text!r}")
+    return value
 
 
 def contact_table(rows: dict[str, dict]) -> str:
