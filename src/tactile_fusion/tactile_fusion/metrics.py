@@ -91,9 +91,7 @@ def contact_metrics(predicted_n: np.ndarray, true_n: np.ndarray, bin_centers_m: 
     for an empty band) and the distance between estimated and true centre of pressure over the frames reported,
     median and 95th percentile in mm (None where none was reported); detected_from_n (`detection_limit`).
     """
-    if not (np.isfinite(contact_level_n) and contact_level_n > 0):
-        raise ValueError(f"contact_metrics: contact_level_n must be a finite number > 0 (newtons), got "
-                         f"{contact_level_n!r}")
+    contact_level_n = checked_contact_level(contact_level_n)
     predicted_fz = np.asarray(predicted_n, dtype=np.float64)[..., 2]
     true_fz = np.asarray(true_n, dtype=np.float64)[..., 2]
     if predicted_fz.shape != true_fz.shape or tuple(np.shape(bin_centers_m)) != true_fz.shape[1:] + (2,):
@@ -114,7 +112,7 @@ def contact_metrics(predicted_n: np.ndarray, true_n: np.ndarray, bin_centers_m: 
                       "reported_share": float(reported[in_band].mean()) if in_band.any() else None,
                       "centre_error_mm_median": float(np.median(located)) if located.size else None,
                       "centre_error_mm_p95": float(np.percentile(located, 95)) if located.size else None})
-    return {"contact_level_n": float(contact_level_n), "frames_without_load": int(unloaded.sum()),
+    return {"contact_level_n": contact_level_n, "frames_without_load": int(unloaded.sum()),
             "false_contacts": int((reported & unloaded).sum()), "bands": bands,
             "detected_from_n": detection_limit(bands)}
 
@@ -136,16 +134,22 @@ def detection_limit(bands: list[dict]) -> float | None:
     return limit if limit == 0.0 else None
 
 
-def contact_level_argument(text: str) -> float:
-    """`--contact-level NEWTONS` of `tactile-fusion eval` and `tactile-bag eval` (an argparse type): a finite
-    number > 0, so that a bad value is refused before any evaluation runs."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
+def checked_contact_level(contact_level_n) -> float:
+    """The contact level as a float, a finite number > 0 (newtons); ValueError otherwise."""
+    value = float(contact_level_n)
     if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a number of newtons > 0, got {text!r}")
+        raise ValueError(f"contact_metrics: contact_level_n must be a finite number > 0 (newtons), got "
+                         f"{contact_level_n!r}")
     return value
+
+
+def contact_level_argument(text: str) -> float:
+    """`--contact-level NEWTONS` of `tactile-fusion eval` and `tactile-bag eval` (an argparse type): a level that
+    `checked_contact_level` takes, so that a bad value is refused before any evaluation runs."""
+    try:
+        return checked_contact_level(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of newtons > 0, got {text!r}") from None
 
 
 def contact_table(rows: dict[str, dict]) -> str:

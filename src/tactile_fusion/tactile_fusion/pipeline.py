@@ -252,11 +252,18 @@ def scene_source(scene: str) -> str:
     return f"scene {Path(scene).resolve() if Path(scene).is_file() else scene}"
 
 
+def training_data(model_dir: Path) -> dict | None:
+    """The "data" record of the model directory's training.json (what it was trained on, see `data_identity`), None
+    without training.json."""
+    record = model_dir / TRAINING_JSON
+    return json.loads(record.read_text()).get("data", {}) if record.exists() else None
+
+
 def training_source(model_dir: Path) -> str | None:
     """What the model was trained on, as its training.json says ("scene NAME", "scene PATH" or "dataset PATH"); None
     without training.json."""
-    record = model_dir / TRAINING_JSON
-    return json.loads(record.read_text()).get("data", {}).get("source") if record.exists() else None
+    data = training_data(model_dir)
+    return None if data is None else data.get("source")
 
 
 def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "test", frames: int | None = None,
@@ -270,8 +277,8 @@ def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "tes
     found is refused (ModelFileError), rather than silently measured on other data.
     """
     record = model_dir / TRAINING_JSON
-    if record.exists():
-        data = json.loads(record.read_text()).get("data", {})
+    data = training_data(model_dir)
+    if data is not None:
         kind, _, name = str(data.get("source", "")).partition(" ")
         note = ""
     else:
