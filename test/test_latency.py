@@ -31,3 +31,9 @@ def test_latency_rejects_a_bad_window(tmp_path):
     run = subprocess.run(["tactile-latency", "--markers-rate", "0", "--log-dir", str(tmp_path)], capture_output=True,
                          text=True, timeout=60)
     assert run.returncode == 2 and "--markers-rate > 0" in run.stderr
+
+
+def test_latency_refuses_a_model_directory_without_a_model(tmp_path):
+    run = subprocess.run(["tactile-latency", "--model", str(tmp_path), "--log-dir", str(tmp_path)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.startswith("tactile-latency: error: no model in"), run.stderr

@@ -1,6 +1,7 @@
 """System tests of the live graph: real node processes talking over Fast DDS on loopback."""
 
 import json
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +84,23 @@ def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(ros_domain, run_g
     shipped = json.loads((default_model_dir() / "metrics.json").read_text())
     # The demo scene (a 1 mm press sliding over the surface) is not the test split: allow twice the test error.
     assert summary["rmse_total_n"][2] < 2 * shipped["rmse_total_n"][2] + 0.05, summary
+
+
+def test_demo_names_the_node_that_refused_its_model_and_why(ros_domain, run_graph_tool, tmp_path):
+    """A fusion node that exits while the graph starts stops the demo at once, with the node's own last words."""
+    demo = run_graph_tool(["tactile-demo", "--model", str(tmp_path / "no_model"), "--duration", "30", "--log-dir",
+                           str(tmp_path)], 60)
+    assert demo.returncode == 2, demo.stderr
+    assert "node tactile_fusion exited with status 1 while the graph started" in demo.stderr
+    assert "no model in" in demo.stderr and "model.json is missing" in demo.stderr
+    assert not (tmp_path / "tactile_sim_cameras.log").exists()  # the cameras were never started
+
+
+def test_demo_refuses_a_sensor_file_it_cannot_read(tmp_path):
+    demo = subprocess.run(["tactile-demo", "--sensor", str(tmp_path / "missing.yaml"), "--log-dir", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert demo.returncode == 2 and demo.stderr.startswith("tactile-demo: error: cannot read sensor description")
+    assert "Traceback" not in demo.stderr
 
 
 def test_markers_are_published_at_most_at_their_rate(ros_probe, collect, tmp_path):

@@ -24,6 +24,7 @@ from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
+from tactile_description.command_line import stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, contact_table, metrics_table
 
 USAGE_ERROR = 2
@@ -91,7 +92,7 @@ def cmd_eval(args) -> int:
     if summary["matched_with_ground_truth"]:
         print(f"{summary['matched_with_ground_truth']} estimates matched with ground truth "
               f"({summary['ground_truth_messages']} messages on {truth_topic}):")
-        metrics = result.metrics()
+        metrics = result.metrics
         print(metrics_table({Path(result.bag).name: metrics}))
         print(contact_table({Path(result.bag).name: metrics["contact"]}))
     elif summary["ground_truth_messages"]:
@@ -158,6 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:

@@ -17,6 +17,7 @@ compared with the simulator's ground truth recorded beside them.
 
 from __future__ import annotations
 
+import functools
 import statistics
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -81,9 +82,10 @@ class BagEvaluation:
     def matched(self) -> np.ndarray:
         return self.truth_index >= 0
 
+    @functools.cached_property
     def metrics(self) -> dict | None:
         """force_metrics over the estimates that have ground truth, with their contact_metrics under "contact", or
-        None without any."""
+        None without any (computed once: summary() and the CLI's tables both read it)."""
         if not self.matched.any():
             return None
         estimates, truth = self.estimates_n[self.matched], self.truth_n[self.truth_index[self.matched]]
@@ -92,7 +94,7 @@ class BagEvaluation:
 
     def summary(self) -> dict:
         totals = self.estimates_n.astype(np.float64).sum(axis=(1, 2))
-        metrics = self.metrics() or {}
+        metrics = self.metrics or {}
         missing = sorted({c for row in self.camera_ok for c, ok in zip(self.camera_ids, row, strict=True) if not ok})
         off = self.off_reference if self.off_reference is not None else np.zeros_like(self.camera_ok)
         return {

@@ -55,14 +55,14 @@ def test_estimates_are_the_predictors_against_the_mean_of_the_first_bundles(sim_
     np.testing.assert_array_equal(result.truth_index, np.arange(10, 10 + n))
     truth = np.stack([f.bin_forces_n for f in frames])
     direct = force_metrics(expected, truth)
-    assert result.metrics()["rmse_bin_n"] == pytest.approx(direct["rmse_bin_n"], rel=1e-5)
-    assert result.metrics()["rmse_total_n"] == pytest.approx(direct["rmse_total_n"], rel=1e-5)
+    assert result.metrics["rmse_bin_n"] == pytest.approx(direct["rmse_bin_n"], rel=1e-5)
+    assert result.metrics["rmse_total_n"] == pytest.approx(direct["rmse_total_n"], rel=1e-5)
     contact = contact_metrics(expected, truth, sensor.grid.bin_centers_m())
-    assert [(b["frames"], b["reported_share"]) for b in result.metrics()["contact"]["bands"]] == \
+    assert [(b["frames"], b["reported_share"]) for b in result.metrics["contact"]["bands"]] == \
         [(b["frames"], b["reported_share"]) for b in contact["bands"]]
     assert sum(b["frames"] for b in contact["bands"]) + contact["frames_without_load"] == n
     summary = result.summary()
-    assert summary["contact"] == result.metrics()["contact"]
+    assert summary["contact"] == result.metrics["contact"]
     assert summary["matched_with_ground_truth"] == summary["estimates"] == n
     assert summary["degraded_estimates"] == 0 and summary["missing_camera_ids"] == []
     assert summary["reference_checked"] and summary["off_reference_camera_ids"] == []
@@ -145,7 +145,7 @@ def test_without_ground_truth_only_statistics(tmp_path, write_bag, sensor, sim_f
     write_bag(tmp_path / "bag", sensor, sim_frames, truth=False)
     result = evaluate_bag(tmp_path / "bag", sensor, predictor)
     summary = result.summary()
-    assert result.metrics() is None and summary["rmse_bin_n"] is None and summary["ground_truth_messages"] == 0
+    assert result.metrics is None and summary["rmse_bin_n"] is None and summary["ground_truth_messages"] == 0
     totals = result.estimates_n.astype(np.float64).sum(axis=(1, 2))
     assert summary["estimated_total_n"]["max"] == pytest.approx(totals.max(axis=0).tolist())
 

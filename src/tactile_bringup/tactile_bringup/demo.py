@@ -22,11 +22,12 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import start_graph, stop_nodes
+from tactile_bringup.processes import GraphStartError, log_tail, start_graph, stop_nodes
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
-from tactile_description import default_sensor_path, load_sensor
+from tactile_description import SensorConfigError, default_sensor_path, load_sensor
+from tactile_description.command_line import stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 
@@ -102,6 +103,7 @@ class Monitor(Node):
         }
 
 
+@stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=20.0, help="seconds to run the graph (default 20)")
@@ -115,20 +117,31 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--duration must be > 0")
 
     sensor_config = args.sensor or str(default_sensor_path())
-    sensor = load_sensor(sensor_config)
     log_dir = Path(args.log_dir)
+    try:
+        sensor = load_sensor(sensor_config)
+    except SensorConfigError as exc:
+        print(f"tactile-demo: error: {exc}", file=sys.stderr)
+        return 2
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
-    specs, processes = start_graph(sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model),
-                                   log_dir, monitor)
+    try:
+        specs, processes = start_graph(sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model),
+                                       log_dir, monitor)
+    except GraphStartError as exc:
+        monitor.destroy_node()
+        rclpy.try_shutdown()
+        print(f"tactile-demo: error: {exc}", file=sys.stderr)
+        return 2
     started = time.monotonic()
     next_report = started + 1.0
     try:
         while time.monotonic() - started < args.duration:
             rclpy.spin_once(monitor, timeout_sec=0.05)
-            dead = [s.name for s, p in zip(specs, processes, strict=True) if p.poll() is not None]
+            dead = [s for s, p in zip(specs, processes, strict=True) if p.poll() is not None]
             if dead:
-                print(f"tactile-demo: node(s) {dead} exited; see {log_dir}/", file=sys.stderr)
+                print(f"tactile-demo: node {dead[0].name} exited: {log_tail(log_dir, dead[0])}; see {log_dir}/",
+                      file=sys.stderr)
                 break
             if time.monotonic() >= next_report and not args.json:
                 next_report += 1.0

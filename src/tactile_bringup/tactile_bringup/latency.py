@@ -30,10 +30,12 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import spin_until, start_graph, stop_nodes
+from tactile_bringup.processes import GraphStartError, spin_until, start_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
-from tactile_description import default_sensor_path, load_sensor
+from tactile_description import SensorConfigError, default_sensor_path, load_sensor
+from tactile_description.command_line import stops_quietly_on_closed_pipe
+from tactile_fusion.artifacts import ModelFileError
 from tactile_fusion.bench import call_times_s, synthetic_frame
 from tactile_fusion.fusion_node import MARKERS_RATE_HZ
 from tactile_fusion.inference import BACKENDS, PRECISIONS, load_predictor
@@ -99,6 +101,7 @@ def inference_ms(model_dir: str, backend: str, precision: str) -> float:
     return 1e3 * statistics.median(call_times_s(predictor, images, reference, BASELINE_CALLS))
 
 
+@stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tactile-latency", description=__doc__.split("\n\n")[0])
     parser.add_argument("--windows", type=int, default=5, help="measurement windows (default %(default)s)")
@@ -121,15 +124,25 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"backend {args.backend} supports precisions {list(BACKENDS[args.backend])}")
 
     sensor_config = args.sensor or str(default_sensor_path())
-    sensor = load_sensor(sensor_config)
-    baseline_ms = inference_ms(args.model, args.backend, args.precision)
+    try:
+        sensor = load_sensor(sensor_config)
+        baseline_ms = inference_ms(args.model, args.backend, args.precision)
+    except (SensorConfigError, ModelFileError) as exc:
+        print(f"tactile-latency: error: {exc}", file=sys.stderr)
+        return 2
     nodes = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
                          precision=args.precision)
     graph = [measured_spec(spec, args.markers_rate) for spec in nodes]
     rclpy.init()
     probe = LatencyProbe()
     windows = []
-    specs, processes = start_graph(graph, Path(args.log_dir), probe)
+    try:
+        specs, processes = start_graph(graph, Path(args.log_dir), probe)
+    except GraphStartError as exc:
+        probe.destroy_node()
+        rclpy.try_shutdown()
+        print(f"tactile-latency: error: {exc}", file=sys.stderr)
+        return 2
     try:
         if spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC], FIRST_ESTIMATE_TIMEOUT_S):
             spin_until(probe, lambda: False, args.settle)

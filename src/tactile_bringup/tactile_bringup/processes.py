@@ -41,9 +41,17 @@ def spin_until(node: Node, condition: Callable[[], object], timeout_s: float) ->
     return True
 
 
-def wait_for_publisher(node: Node, topic: str, timeout_s: float) -> bool:
-    """True once some node publishes `topic` (discovered over DDS), False after `timeout_s`."""
-    return spin_until(node, lambda: node.count_publishers(topic), timeout_s)
+class GraphStartError(RuntimeError):
+    """A node of the graph exited while the graph was starting (a bad model, scene or sensor file, ...)."""
+
+
+def log_tail(log_dir: Path, spec: NodeSpec, lines: int = 1) -> str:
+    """The last non-empty lines of a node's log (where start_node sent its output), "" without any."""
+    try:
+        text = (log_dir / f"{spec.name}.log").read_text(errors="replace")
+    except OSError:
+        return ""
+    return "\n".join([line for line in text.splitlines() if line.strip()][-lines:])
 
 
 def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
@@ -52,17 +60,26 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
 
     The fusion node takes its reference frames from the first bundles it sees, which must show the surface at
     rest: the cameras start only once `probe` sees it publish (it loads the model for a few seconds), so a
-    scene's opening rest frames are the ones it gets. Returns after `timeout_s` without it, with a message.
+    scene's opening rest frames are the ones it gets. Returns after `timeout_s` without it, with a message. A node
+    that exits meanwhile (it refused its model, scene or sensor file) stops the graph: GraphStartError names it
+    with the last line of its log, which says why.
     """
     cameras = [s for s in specs if s.package == "tactile_camera_driver"]
     others = [s for s in specs if s not in cameras]
     processes = []
     try:
         processes += [start_node(spec, log_dir) for spec in others]
-        if not wait_for_publisher(probe, ESTIMATE_TOPIC, timeout_s):  # the fusion node is up
+        spin_until(probe, lambda: probe.count_publishers(ESTIMATE_TOPIC) or any(p.poll() is not None
+                                                                                 for p in processes), timeout_s)
+        exited = [(spec, p.returncode) for spec, p in zip(others, processes, strict=True) if p.poll() is not None]
+        if exited:
+            spec, code = exited[0]
+            raise GraphStartError(f"node {spec.name} exited with status {code} while the graph started: "
+                                  f"{log_tail(log_dir, spec) or '(its log is empty)'} (log: {log_dir / spec.name}.log)")
+        if not probe.count_publishers(ESTIMATE_TOPIC):
             print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
         processes += [start_node(spec, log_dir) for spec in cameras]
-    except BaseException:  # Ctrl-C or an error while waiting: leave no node behind
+    except BaseException:  # Ctrl-C, an error while waiting or a node that exited: leave no node behind
         stop_nodes(processes)
         raise
     return others + cameras, processes

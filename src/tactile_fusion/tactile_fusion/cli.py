@@ -26,6 +26,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, left_out_components, load_sensor
+from tactile_description.command_line import stops_quietly_on_closed_pipe
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ModelFileError,
@@ -406,6 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:

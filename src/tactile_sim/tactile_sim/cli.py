@@ -16,6 +16,7 @@ import json
 import sys
 
 from tactile_description import SensorConfigError, load_sensor
+from tactile_description.command_line import stops_quietly_on_closed_pipe
 from tactile_sim.contact import ground_truth_model, press_contact, press_report
 from tactile_sim.dataset import DatasetError, write_dataset
 from tactile_sim.effects import SceneError
@@ -120,6 +121,7 @@ def _bench(args, sensor) -> None:
         print(f"  {name:22s} {ms:+.3f} ms per frame")
 
 
+@stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:

@@ -58,3 +58,12 @@ def test_bad_input_gets_a_clear_error_and_exit_status_2(tmp_path):
     assert result.returncode == 2 and "installed scenes are" in result.stderr
     result = _run("press", "--x-mm", "10", "--y-mm", "10", "--depth-mm", "9", check=False)
     assert result.returncode == 2 and "deeper than the deepest allowed press" in result.stderr
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly():
+    """`tactile-sim press ... | head -0`: status 141 as a shell tool's, no traceback."""
+    process = subprocess.Popen([sys.executable, "-m", "tactile_sim.cli", "press", "--x-mm", "0", "--y-mm", "0",
+                                "--depth-mm", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process.stdout.close()
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 141 and "Traceback" not in stderr, stderr
