@@ -31,28 +31,48 @@ def kill_group(pgid: int) -> None:
         os.killpg(pgid, signal.SIGKILL)
 
 
-@pytest.fixture
-def run_graph_tool():
-    """run_graph_tool(args, timeout_s): run a command-line tool that starts node processes, like subprocess.run.
+class GraphTools:
+    """Command-line tools that start node processes (tactile-demo, tactile-latency), each in a process group and
+    session of its own, whose id is the tool's pid. Whatever of a group still runs when the test ends is killed:
+    killing only the tool would leave its nodes running, and publishing, after the test."""
 
-    The tool runs in a process group of its own. If the test ends before the tool does (a timeout, Ctrl-C), the
-    whole group is killed: killing only the tool would leave its nodes running, and publishing, after the test.
-    """
-    def run(args: list[str], timeout_s: float) -> subprocess.CompletedProcess:
+    def __init__(self) -> None:
+        self.started: list[subprocess.Popen] = []
+
+    def start(self, args: list[str]) -> subprocess.Popen:
         process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                    start_new_session=True)
-        try:
-            stdout, stderr = process.communicate(timeout=timeout_s)
-        except BaseException:
-            kill_group(process.pid)
-            process.communicate()
-            raise
+        self.started.append(process)
+        return process
+
+    def finish(self, process: subprocess.Popen, timeout_s: float) -> subprocess.CompletedProcess:
+        """Wait for a started tool, like subprocess.run; the test fails if the tool left processes of its group."""
+        stdout, stderr = process.communicate(timeout=timeout_s)
         if group_alive(process.pid):
             kill_group(process.pid)
-            pytest.fail(f"{args[0]} exited but left processes of its group running (killed now)")
-        return subprocess.CompletedProcess(args, process.returncode, stdout, stderr)
+            pytest.fail(f"{process.args[0]} exited but left processes of its group running (killed now)")
+        return subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
 
-    return run
+    def run(self, args: list[str], timeout_s: float) -> subprocess.CompletedProcess:
+        return self.finish(self.start(args), timeout_s)
+
+    def kill_all(self) -> None:
+        for process in self.started:
+            kill_group(process.pid)
+            process.communicate()
+
+
+@pytest.fixture
+def graph_tools():
+    tools = GraphTools()
+    yield tools
+    tools.kill_all()
+
+
+@pytest.fixture
+def run_graph_tool(graph_tools):
+    """run_graph_tool(args, timeout_s): run a tool that starts node processes, like subprocess.run (GraphTools)."""
+    return graph_tools.run
 
 
 @pytest.fixture

@@ -3,8 +3,10 @@
 Starts the nodes of tactile_bringup.graph as separate processes (what `ros2 launch tactile_bringup
 sensor.launch.py` starts where the launch system is installed), listens to `/tactile/force_distribution` and the
 simulator's `/tactile/ground_truth/force_distribution`, prints one line per second, stops the graph after
-`--duration` seconds and prints a summary (`--json`: one JSON object). Exits non-zero when the graph produced no
-estimate, or an estimate that breaks the message contract.
+`--duration` seconds and prints a summary (`--json`: one JSON object) with every node's exit code. Exits 1 when
+the graph produced no estimate or an estimate that breaks the message contract, or a node exited before the end
+or with a non-zero code; 2 when the sensor file cannot be read or a node exits while the graph starts. Ctrl-C and
+SIGTERM end the run early, with the summary.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
@@ -135,12 +138,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     started = time.monotonic()
     next_report = started + 1.0
+    died = None  # the first node that exited while the graph ran
     try:
         while time.monotonic() - started < args.duration:
             rclpy.spin_once(monitor, timeout_sec=0.05)
-            dead = [s for s, p in zip(specs, processes, strict=True) if p.poll() is not None]
-            if dead:
-                print(f"tactile-demo: node {dead[0].name} exited: {log_tail(log_dir, dead[0])}; see {log_dir}/",
+            died = next((s for s, p in zip(specs, processes, strict=True) if p.poll() is not None), None)
+            if died:
+                print(f"tactile-demo: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
                       file=sys.stderr)
                 break
             if time.monotonic() >= next_report and not args.json:
@@ -149,20 +153,21 @@ def main(argv: list[str] | None = None) -> int:
                 if monitor.last:
                     line += f"  total Fz estimated {monitor.last[0]:6.3f} N, true {monitor.last[1]:6.3f} N"
                 print(line, flush=True)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM (rclpy shuts the context down)
         pass
     finally:
-        stop_nodes(processes)
+        codes = stop_nodes(processes)
         summary = monitor.summary(time.monotonic() - started)
         monitor.destroy_node()
         rclpy.try_shutdown()
+    summary["exit_codes"] = {spec.name: code for spec, code in zip(specs, codes, strict=True)}
     print(json.dumps(summary) if args.json else json.dumps(summary, indent=2))
-    if not summary["estimates"] or summary["contract_violations"]:
+    if not summary["estimates"] or summary["contract_violations"] or died or any(codes):
         print(f"tactile-demo: the graph produced {summary['estimates']} estimate(s), violations "
-              f"{summary['contract_violations']}; node logs in {log_dir}/", file=sys.stderr)
+              f"{summary['contract_violations']}, node exit codes {summary['exit_codes']}"
+              f"{f', {died.name} exited early' if died else ''}; node logs in {log_dir}/", file=sys.stderr)
         return 1
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
@@ -153,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
                   file=sys.stderr)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM (rclpy shuts the context down)
         pass
     finally:
         codes = stop_nodes(processes)
