@@ -6,6 +6,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from tactile_fusion.camera_out import with_cameras_at_rest
 from tactile_fusion.data import FrameSet
 from tactile_fusion.inference import ForcePredictor
 from tactile_fusion.metrics import force_metrics
@@ -14,7 +15,7 @@ from tactile_fusion.model import ForceFusionNet
 
 def predict_frames(predictor: ForcePredictor, frames: FrameSet, batch_size: int = 32,
                    progress: bool = False) -> np.ndarray:
-    """(N, rows, cols, 3) predictions for every frame; cameras flagged not ok are replaced by their reference."""
+    """(N, rows, cols, 3) predictions for every frame; cameras flagged not ok are shown at rest (camera_out)."""
     out = np.empty(frames.bin_forces_n.shape, dtype=np.float32)
     starts = range(0, len(frames), batch_size)
     for start in tqdm(starts, desc=f"evaluate {frames.scene}", unit="batch", disable=not progress):
@@ -32,9 +33,12 @@ def evaluate(predictor: ForcePredictor, frames: FrameSet, progress: bool = False
 
 @torch.no_grad()
 def predict_torch(model: ForceFusionNet, frames: FrameSet, batch_size: int = 32) -> np.ndarray:
-    """(N, rows, cols, 3) newtons from the torch model (evaluation mode)."""
+    """(N, rows, cols, 3) newtons from the torch model (evaluation mode); cameras flagged not ok shown at rest."""
     model.eval()
-    reference = torch.from_numpy(np.asarray(frames.reference))
-    out = [model(torch.from_numpy(np.asarray(frames.images[i:i + batch_size])), reference).numpy()
-           for i in range(0, len(frames), batch_size)]
+    reference = np.asarray(frames.reference)
+    out = []
+    for i in range(0, len(frames), batch_size):
+        images = with_cameras_at_rest(np.asarray(frames.images[i:i + batch_size]), reference,
+                                      frames.camera_ok[i:i + batch_size])
+        out.append(model(torch.from_numpy(images), torch.from_numpy(reference)).numpy())
     return np.concatenate(out)

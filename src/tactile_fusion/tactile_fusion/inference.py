@@ -27,6 +27,7 @@ from tactile_fusion.artifacts import (
     model_threshold,
     read_model_json,
 )
+from tactile_fusion.camera_out import with_cameras_at_rest
 from tactile_fusion.export import copy_to_half, graph_threshold
 from tactile_fusion.model import ForceFusionNet, difference_images
 
@@ -59,8 +60,8 @@ class ForcePredictor:
         """One frame: images and reference (C, H, W) -> bin forces (rows, cols, 3) float32 newtons.
 
         camera_ids: the camera of each image, in the given order, when it is not the model's order.
-        camera_ok: (C,) bool, False for a camera known to be broken (dropped, frozen): its image is replaced by
-        its reference, i.e. that camera reports "no contact" and the other cameras carry the estimate.
+        camera_ok: (C,) bool, False for a camera known to be broken (dropped, frozen): it is shown at rest
+        (`rest_view`), i.e. that camera reports "no contact" and the other cameras carry the estimate.
         """
         ok = None if camera_ok is None else np.asarray(camera_ok, dtype=bool)[None]
         images = self._checked(images, "images", camera_ids, batched=False)[None]
@@ -75,7 +76,7 @@ class ForcePredictor:
         return self._finite(self._run(self._masked(images, reference, camera_ok, camera_ids), reference))
 
     def _masked(self, images: np.ndarray, reference: np.ndarray, camera_ok, camera_ids) -> np.ndarray:
-        """Images with each camera marked not ok replaced by its reference frame."""
+        """Images (in the model's camera order) with each camera marked not ok shown at rest (`rest_view`)."""
         if camera_ok is None:
             return images
         ok = np.asarray(camera_ok, dtype=bool)
@@ -83,9 +84,7 @@ class ForcePredictor:
             raise InputError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")
         if camera_ids is not None:
             ok = ok[:, self._order(camera_ids)]
-        if ok.all():
-            return images
-        return np.where(ok[:, :, None, None], images, reference[None])
+        return with_cameras_at_rest(images, reference, ok)
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         raise NotImplementedError

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from tactile_fusion.camera_out import with_cameras_at_rest
 from tactile_fusion.data import FrameSet
 from tactile_fusion.export import onnx_bytes
 from tactile_fusion.inference import onnx_session
@@ -48,8 +49,10 @@ class ImageSource:
 
     def features_at(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
         """(B * C, camera_features) CNN features of the frames at `indices`, frame-major."""
-        images = torch.from_numpy(np.asarray(self.frames.images[np.sort(indices)]))
-        difference = difference_images(images, self.reference)
+        picked = np.sort(indices)
+        images = with_cameras_at_rest(np.asarray(self.frames.images[picked]), self.frames.reference,
+                                      self.frames.camera_ok[picked])
+        difference = difference_images(torch.from_numpy(images), self.reference)
         b, c, h, w = difference.shape
         return model.cnn(difference.reshape(b * c, 1, h, w))
 
@@ -149,6 +152,7 @@ class CachedSource:
             images = np.asarray(frames.images[start:start + FRONT_BATCH_FRAMES])
             if change is not None:
                 images = change(images, start)
+            images = with_cameras_at_rest(images, reference, frames.camera_ok[start:start + FRONT_BATCH_FRAMES])
             chunks.append(session.run(None, {"images": np.ascontiguousarray(images), "reference": reference})[0])
         return torch.from_numpy(np.concatenate(chunks))
 

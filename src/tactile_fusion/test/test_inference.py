@@ -10,6 +10,7 @@ import torch
 
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import MODEL_JSON, ONNX_FILES, ModelFileError, check_model_fits, load_model, save_model
+from tactile_fusion.camera_out import rest_view
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
 from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig
@@ -106,15 +107,19 @@ def test_float_grey_levels_give_the_uint8_result_and_camera_order_can_be_named(m
     np.testing.assert_array_equal(swapped, expected)
 
 
-def test_a_camera_marked_broken_reports_no_contact(model_dir):
+def test_a_camera_marked_broken_is_shown_at_rest(model_dir):
     out, frames = model_dir
     predictor = load_predictor(out)
     images, reference = frames.images[5].copy(), frames.reference
     images[1] = 0  # a black frame from a dropped camera
     masked = predictor.predict(images, reference, camera_ok=np.array([True, False]))
     substituted = images.copy()
-    substituted[1] = reference[1]
+    substituted[1] = rest_view(reference)[1]
     np.testing.assert_array_equal(masked, predictor.predict(substituted, reference))
+    # The view at rest: the reference with one grey level of noise, the same pattern every time.
+    noise = rest_view(reference).astype(np.int16) - reference
+    assert 0.8 < noise.std() < 1.2 and np.abs(noise).max() <= 6
+    np.testing.assert_array_equal(rest_view(reference), rest_view(reference.copy()))
     with pytest.raises(InputError, match="camera_ok"):
         predictor.predict_batch(frames.images[:2], reference, camera_ok=np.ones(2, dtype=bool))
 

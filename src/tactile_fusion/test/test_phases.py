@@ -12,6 +12,7 @@ import torch
 from tactile_description import load_sensor
 from tactile_fusion import least_squares, sources
 from tactile_fusion.artifacts import MODEL_JSON, TRAINING_JSON
+from tactile_fusion.camera_out import rest_view
 from tactile_fusion.data import split_indices
 from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.fz_threshold import fit_fz_threshold, fit_threshold_and_fusion
@@ -70,6 +71,25 @@ def test_cached_source_predicts_what_the_whole_network_predicts(frames, tiny_con
             torch.testing.assert_close(CachedSource(model, train, cut).predict(model, idx), whole)
     with pytest.raises(ValueError, match="cut must be one of"):
         CachedSource(model, train, "fusion")
+
+
+def test_training_shows_a_camera_that_is_out_at_rest_as_inference_does(frames, tiny_config):
+    """A frame with a camera flagged not ok (a dropped or frozen camera in a scene with effects) trains the model on
+    what the predictor shows it for that camera (camera_out.rest_view), not on the black or frozen image."""
+    model = model_for(frames, tiny_config).eval()
+    train, _ = splits(frames)
+    broken = train.subset(np.arange(len(train)))
+    broken.images[2, 1] = 0  # camera "right" went black in frame 2 and is flagged
+    broken.camera_ok[2, 1] = False
+    shown = train.subset(np.arange(len(train)))
+    shown.images[2, 1] = rest_view(train.reference)[1]
+    idx = np.array([1, 2, 4])
+    with torch.no_grad():
+        expected = ImageSource(shown, model.force_scale_n).predict(model, idx)
+        torch.testing.assert_close(ImageSource(broken, model.force_scale_n).predict(model, idx), expected)
+        for cut in ("trunk", "hidden"):
+            torch.testing.assert_close(CachedSource(model, broken, cut).predict(model, idx), expected)
+    np.testing.assert_array_equal(predict_torch(model, broken), predict_torch(model, shown))
 
 
 @pytest.mark.parametrize("rank", [None, 2])
