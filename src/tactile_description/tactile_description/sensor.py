@@ -153,6 +153,16 @@ class SensorDescription:
     def gel_thickness_m(self) -> float:
         return sum(layer.thickness_m for layer in self.gel_layers)
 
+    @property
+    def particle_layer_volume_m3(self) -> float:
+        top, bottom = self.layer_depth_range_m(self.particles.layer)
+        return self.grid.width_m * self.grid.length_m * (bottom - top)
+
+    @property
+    def particle_count(self) -> int:
+        """The particles in the particle layer: its volume times the density, rounded (not a random draw)."""
+        return int(round(self.particles.per_m3 * self.particle_layer_volume_m3))
+
     def layer(self, name: str) -> GelLayer:
         for layer in self.gel_layers:
             if layer.name == name:
@@ -226,6 +236,9 @@ def _parse(raw: dict, source: str) -> SensorDescription:
                                # below 0.5: an incompressible layer makes the elastic kernels singular
                                poisson_ratio=f.number("poisson_ratio", low=0.0, high=0.4999)))
         f.finish()
+    names = [layer.name for layer in layers]
+    if len(set(names)) != len(names):
+        raise SensorConfigError(f"{source}: gel_layers[*].name must be unique (particles.layer names one), got {names}")
 
     p = top.child("particles")
     diameter_min_um, diameter_max_um = p.span("diameter_um", low=1e-9)
@@ -269,6 +282,11 @@ def _parse(raw: dict, source: str) -> SensorDescription:
                                     frame_rate_hz=frame_rate_hz, source=source)
     top.finish()
     description.layer(particles.layer)  # raises if the particle layer is not one of the gel layers
+    if description.particle_count < 1:
+        volume_mm3 = description.particle_layer_volume_m3 / MM**3
+        raise SensorConfigError(f"{source}: particles.per_mm3 = {particles.per_m3 * MM**3:g} puts no particle in the "
+                                f"{volume_mm3:.4g} mm^3 of layer {particles.layer!r}; the cameras would see nothing: "
+                                f"use at least {0.5 / volume_mm3:.3g} per mm^3")
     for cam in cameras:
         if cam.position_m[2] > -description.gel_thickness_m:
             raise SensorConfigError(f"{source}: camera {cam.camera_id} at z = {cam.position_m[2] / MM} mm is "

@@ -85,6 +85,8 @@ def _broken(tmp_path, edit):
     (lambda r: r["cameras"]["units"][0].update(position_mm=[10, 10, -2]), "inside the gel"),
     (lambda r: r["cameras"]["crop"].update(width=400), "does not fit"),
     (lambda r: r["cameras"].update(units=[]), "at least one camera"),
+    (lambda r: r["gel_layers"][2].update(name="particle_layer"), r"gel_layers\[\*\].name must be unique"),
+    (lambda r: r["particles"].update(per_mm3=1e-6), r"particles.per_mm3 = 1e-06 puts no particle in the 7497 mm\^3"),
 ])
 def test_bad_descriptions_name_the_faulty_key(tmp_path, edit, message):
     with pytest.raises(SensorConfigError, match=message):
@@ -98,3 +100,8 @@ def test_missing_and_corrupt_files_get_clear_errors(tmp_path):
     corrupt.write_text("surface: [unclosed")
     with pytest.raises(SensorConfigError, match="not valid YAML"):
         load_sensor(corrupt)
+
+
+def test_the_particle_count_is_the_density_times_the_layer_volume_rounded(reference):
+    assert reference.particle_layer_volume_m3 == pytest.approx(49e-3 * 51e-3 * 3e-3)
+    assert reference.particle_count == 7497   # 1 per mm^3 in 49 x 51 x 3 mm

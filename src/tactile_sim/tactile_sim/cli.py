@@ -20,15 +20,16 @@ from tactile_description.command_line import stops_quietly_on_closed_pipe
 from tactile_sim.contact import ground_truth_model, press_contact, press_report
 from tactile_sim.dataset import DatasetError, write_dataset
 from tactile_sim.effects import SceneError
-from tactile_sim.scene import load_scene
+from tactile_sim.scene import MAX_FRAMES, load_scene
 
 MODELS = ("analytic", "numerical")
 
 
 def _positive_int(text: str) -> int:
+    """A count on the command line: 1 to MAX_FRAMES (frames, previews, runs)."""
     value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
+    if not 1 <= value <= MAX_FRAMES:
+        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_FRAMES}, got {text}")
     return value
 
 
@@ -90,8 +91,8 @@ def _press(args, sensor) -> None:
 def _generate(args, sensor) -> None:
     from tactile_sim.simulator import Simulator
 
+    scene = load_scene(args.scene, sensor)  # a bad scene is reported before the simulator is built (~1 s)
     sim = Simulator(sensor, ground_truth=args.model)
-    scene = load_scene(args.scene, sensor)
     out = write_dataset(sim, scene, args.out, progress=not args.no_progress, frames=args.frames,
                         overwrite=args.overwrite)
     print(f"wrote {len(scene) if args.frames is None else min(args.frames, len(scene))} frames of scene "
@@ -102,8 +103,8 @@ def _render(args, sensor) -> None:
     from tactile_sim.preview import write_previews
     from tactile_sim.simulator import Simulator
 
-    sim = Simulator(sensor)
-    paths = write_previews(sim, load_scene(args.scene, sensor), args.out, count=args.count, frames=args.frames)
+    scene = load_scene(args.scene, sensor)
+    paths = write_previews(Simulator(sensor), scene, args.out, count=args.count, frames=args.frames)
     print("\n".join(str(p) for p in paths))
 
 
@@ -128,9 +129,18 @@ def main(argv: list[str] | None = None) -> int:
         sensor = load_sensor(args.sensor)
         {"press": _press, "generate": _generate, "render": _render, "bench": _bench}[args.command](args, sensor)
     except (SceneError, DatasetError, SensorConfigError, ValueError) as exc:
-        print(f"tactile-sim {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(args.command, str(exc))
+    except BrokenPipeError:
+        raise  # the reader went away: stops_quietly_on_closed_pipe ends the command as a shell tool does
+    except OSError as exc:  # a file or directory that cannot be read or written (--out /dev/null/x, a full disk)
+        return _error(args.command, f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
     return 0
+
+
+def _error(command: str, message: str) -> int:
+    """Report a bad input or an unusable file on one line; the exit status."""
+    print(f"tactile-sim {command}: error: {message}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -37,6 +37,15 @@ from .elastic import CompliantLayer, compliant_layer
 #: are far outside linear elasticity (and the thin-layer series below outside its fitted range).
 MAX_DEPTH_LAYER_FRACTION = 0.5
 
+#: Largest chi = sqrt(R d) / h of a sphere press: the edge of the Dimitriadis thin-layer series' fitted range (the
+#: 10 mm sphere at the deepest press, 2 mm, has chi = 0.79). There it is within 7 % of the numerical model's exact
+#: layer compliance (docs/simulator-physics.md); a 400 mm sphere 2 mm deep (chi = 5) is twice the exact force.
+MAX_SPHERE_CHI = 0.8
+
+#: Largest radius of a flat punch, in compliant-layer thicknesses (a / h): Shull's thin-layer form is within 4-8 %
+#: of the numerical model for a / h <= 1, 20 % off at 1.25 and twice the exact force at 2.5.
+MAX_PUNCH_RADIUS_LAYERS = 1.0
+
 #: Smallest radius at which the analytic model places its force samples. A vanishing contact (depth 1e-30 m) has
 #: a radius below the rounding of its position; without this floor its samples would all round onto the centre,
 #: and a centre exactly on a bin edge would load one side only instead of splitting evenly.
@@ -139,26 +148,58 @@ class GroundTruthModel(Protocol):
         ...
 
 
+def max_punch_radius_m(sensor: SensorDescription) -> float:
+    """Widest flat punch the thin-layer punch formula holds for on this sensor (a / h <= MAX_PUNCH_RADIUS_LAYERS)."""
+    return MAX_PUNCH_RADIUS_LAYERS * compliant_layer(sensor).thickness_m
+
+
+def _depth_limits_m(sensor: SensorDescription, shape: Shape) -> dict[str, float]:
+    """Each limit on the depth of a press with `shape`, by the reason for it."""
+    h = compliant_layer(sensor).thickness_m
+    limits = {"half the compliant gel": MAX_DEPTH_LAYER_FRACTION * h}
+    if isinstance(shape, Sphere):
+        limits["the sphere's radius"] = shape.radius_m
+        limits[f"chi = sqrt(R d) / h at most {MAX_SPHERE_CHI}, the range of the thin-layer sphere formula "
+               f"(Dimitriadis)"] = (MAX_SPHERE_CHI * h) ** 2 / shape.radius_m
+    elif isinstance(shape, HeightMap):
+        limits["the height map's tallest point"] = float(shape.heights_m.max())
+    return limits
+
+
 def max_depth_m(sensor: SensorDescription, shape: Shape) -> float:
     """Deepest allowed press for `shape` on this sensor; deeper presses raise ValueError (they are not clamped).
 
-    Half the compliant layer (2 mm on the reference sensor), and no deeper than the indenter itself is tall
-    (a sphere's radius, a height map's tallest point).
+    Half the compliant layer (2 mm on the reference sensor), no deeper than the indenter itself is tall (a sphere's
+    radius, a height map's tallest point), and for a sphere no deeper than chi = sqrt(R d) / h = MAX_SPHERE_CHI.
     """
-    limit = MAX_DEPTH_LAYER_FRACTION * compliant_layer(sensor).thickness_m
-    if isinstance(shape, Sphere):
-        return min(limit, shape.radius_m)
-    if isinstance(shape, HeightMap):
-        return min(limit, float(shape.heights_m.max()))
-    return limit
+    return min(_depth_limits_m(sensor, shape).values())
 
 
-def check_depth(sensor: SensorDescription, contact: Contact) -> None:
-    limit = max_depth_m(sensor, contact.shape)
-    if contact.depth_m > limit:
-        raise ValueError(f"Contact.depth_m = {contact.depth_m * 1e3:.4g} mm is deeper than the deepest allowed press "
-                         f"of {limit * 1e3:.4g} mm for {contact.shape} on sensor {sensor.name!r} (half the compliant "
-                         f"gel, and not deeper than the indenter is tall); press less deep")
+def press_problem(sensor: SensorDescription, shape: Shape, depth_m: float) -> str | None:
+    """Why pressing `shape` `depth_m` deep on this sensor is outside the contact models' range, or None if it is not.
+
+    A flat punch wider than max_punch_radius_m, or a depth beyond max_depth_m (the message names the limit).
+    """
+    name = sensor.name
+    if isinstance(shape, FlatPunch) and shape.radius_m > max_punch_radius_m(sensor):
+        h = compliant_layer(sensor).thickness_m
+        return (f"a flat punch {shape.radius_m * 2e3:.4g} mm in diameter on the {h * 1e3:.4g} mm compliant gel of "
+                f"sensor {name!r} has a / h = {shape.radius_m / h:.3g}, above {MAX_PUNCH_RADIUS_LAYERS:g}, where the "
+                f"thin-layer punch formula (Shull) holds; use a punch at most {max_punch_radius_m(sensor) * 2e3:.4g} "
+                f"mm in diameter")
+    limits = _depth_limits_m(sensor, shape)
+    reason = min(limits, key=limits.get)
+    if depth_m > limits[reason]:
+        return (f"a press {depth_m * 1e3:.4g} mm deep is deeper than the deepest allowed press of "
+                f"{limits[reason] * 1e3:.4g} mm for {shape} on sensor {name!r} ({reason}); press less deep")
+    return None
+
+
+def check_contact(sensor: SensorDescription, contact: Contact) -> None:
+    """Raise ValueError if the contact is outside the contact models' range (see press_problem)."""
+    problem = press_problem(sensor, contact.shape, contact.depth_m)
+    if problem is not None:
+        raise ValueError(f"Contact: {problem}")
 
 
 # --- axisymmetric contact of a rigid indenter on the bonded layer ------------------------------------------------
@@ -241,20 +282,6 @@ def stick_depth_m(layer: CompliantLayer, contact: Contact) -> float:
     return max(0.0, contact.depth_m - 2.0 * (1.0 - nu) * shear / (contact.friction * (2.0 - nu)))
 
 
-def contact_force_n(sensor: SensorDescription, contact: Contact) -> np.ndarray:
-    """(3,) total force (fx, fy, fz) of the whole analytic contact, including any part off the surface."""
-    check_depth(sensor, contact)
-    layer = compliant_layer(sensor)
-    if contact.depth_m == 0.0:
-        return np.zeros(3)
-    normal = normal_load(layer, contact.shape, contact.depth_m)
-    stick = normal_load(layer, contact.shape, stick_depth_m(layer, contact))
-    tangential = contact.friction * (normal.force_n - stick.force_n)
-    shear = math.hypot(*contact.shear_m)
-    direction = np.array(contact.shear_m) / shear if shear > 0 else np.zeros(2)
-    return np.array([tangential * direction[0], tangential * direction[1], normal.force_n])
-
-
 class AnalyticContactModel:
     """Closed-form axisymmetric contacts sampled on rings x sectors and binned (see the module docstring).
 
@@ -284,7 +311,7 @@ class AnalyticContactModel:
         for contact in contacts:
             if not isinstance(contact, Contact):
                 raise ValueError(f"contacts must hold Contact objects, got {type(contact).__name__}")
-            check_depth(self.sensor, contact)
+            check_contact(self.sensor, contact)
             if contact.depth_m > 0.0:
                 self._add_contact(contact, out)
         return out.reshape(grid.rows, grid.cols, 3)

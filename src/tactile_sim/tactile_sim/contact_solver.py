@@ -35,7 +35,7 @@ from scipy.special import j0
 
 from tactile_description import SensorDescription
 
-from .contact import Contact, FlatPunch, HeightMap, Sphere, check_depth, stick_depth_m
+from .contact import Contact, FlatPunch, HeightMap, Sphere, check_contact, stick_depth_m
 from .elastic import CompliantLayer, compliant_layer
 
 #: Beyond this many layer thicknesses the bonded layer's surface response is below ~1e-4 of its peak (it decays
@@ -228,7 +228,7 @@ class NumericalContactModel:
         for contact in contacts:
             if not isinstance(contact, Contact):
                 raise ValueError(f"contacts must hold Contact objects, got {type(contact).__name__}")
-            check_depth(self.sensor, contact)
+            check_contact(self.sensor, contact)
         pressing = [c for c in contacts if c.depth_m > 0.0]
         window = self._window(pressing) if pressing else None
         if window is None:

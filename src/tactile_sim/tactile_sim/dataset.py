@@ -130,7 +130,36 @@ class Dataset:
 
     def contacts(self) -> list[list[dict]]:
         """The contacts of every frame (read on demand: contacts.json)."""
-        return json.loads((self.path / "contacts.json").read_text())
+        return _read_contacts(self.path, len(self))
+
+
+def _read_json(path: Path):
+    """The JSON value in `path`; DatasetError if it is missing, unreadable, not UTF-8 or not JSON."""
+    try:
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except FileNotFoundError as exc:
+        raise DatasetError(f"{path.parent} lacks {path.name}; regenerate the data set") from exc
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path} is not readable UTF-8 JSON ({exc}); regenerate the data set") from exc
+
+
+def _read_contacts(directory: Path, frames: int) -> list[list[dict]]:
+    """contacts.json: one list of contact mappings per frame (DatasetError otherwise)."""
+    path = directory / "contacts.json"
+    contacts = _read_json(path)
+    if not (isinstance(contacts, list) and len(contacts) == frames
+            and all(isinstance(f, list) and all(isinstance(c, dict) for c in f) for f in contacts)):
+        found = f"{len(contacts)} entries" if isinstance(contacts, list) else type(contacts).__name__
+        raise DatasetError(f"{path} must list the contacts of each of the {frames} frames (a list of mappings per "
+                           f"frame), found {found}; regenerate the data set")
+    return contacts
+
+
+def _meta_count(meta: dict, key: str, meta_path: Path) -> int:
+    value = meta.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise DatasetError(f"{meta_path}: {key} must be an integer >= 1, got {value!r}; regenerate the data set")
+    return value
 
 
 def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = None) -> Dataset:
@@ -139,22 +168,21 @@ def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = Non
     meta_path = directory / "meta.json"
     if not meta_path.is_file():
         raise DatasetError(f"{directory} is not a data set: no meta.json (write one with `tactile-sim generate`)")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{meta_path} is not readable JSON ({exc}); regenerate the data set") from exc
+    meta = _read_json(meta_path)
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise DatasetError(f"{meta_path} does not describe a {FORMAT} data set")
     if meta.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{directory} has format version {meta.get('format_version')!r}; this reader knows "
                            f"version {FORMAT_VERSION}: regenerate the data set")
-    if not meta.get("complete"):
-        raise DatasetError(f"{directory} is incomplete (the writer stopped before the last frame); regenerate it")
-    try:
-        n, c = int(meta["frame_count"]), len(meta["camera_ids"])
-        h, w, rows, cols = (int(meta[k]) for k in ("image_height", "image_width", "rows", "cols"))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DatasetError(f"{meta_path} lacks or mangles a required key ({exc}); regenerate the data set") from exc
+    if meta.get("complete") is not True:
+        raise DatasetError(f"{directory} is incomplete (meta.json says complete: {meta.get('complete')!r}, not true: "
+                           f"the writer stopped before the last frame); regenerate it")
+    camera_ids = meta.get("camera_ids")
+    if not (isinstance(camera_ids, list) and camera_ids and all(isinstance(i, str) for i in camera_ids)):
+        raise DatasetError(f"{meta_path}: camera_ids must be a non-empty list of camera ids, got {camera_ids!r}; "
+                           f"regenerate the data set")
+    n, c = _meta_count(meta, "frame_count", meta_path), len(camera_ids)
+    h, w, rows, cols = (_meta_count(meta, k, meta_path) for k in ("image_height", "image_width", "rows", "cols"))
     expected = {"reference": ((c, h, w), np.uint8), "images": ((n, c, h, w), np.uint8),
                 "forces": ((n, rows, cols, 3), np.float32), "camera_ok": ((n, c), np.bool_),
                 "times_s": ((n,), np.float64)}
@@ -172,6 +200,7 @@ def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = Non
             raise DatasetError(f"{file} holds {array.dtype} {array.shape}, meta.json promises {np.dtype(dtype)} "
                                f"{shape}; the directory mixes data sets: regenerate it")
         arrays[name] = array
+    _read_contacts(directory, n)
     if sensor is not None and meta.get("sensor_sha256") != sensor_sha256(sensor):
         raise DatasetError(f"{directory} was made for sensor {meta.get('sensor_name')!r} with another description "
                            f"than {sensor.name!r} ({sensor.source}); regenerate it for this sensor")

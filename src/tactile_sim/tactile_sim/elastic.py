@@ -1,10 +1,11 @@
 """The gel as a linear-elastic solid: its effective compliant layer, and the displacement of embedded particles.
 
 The gel is three silicone layers (bottom to top in `sensor.gel_layers`). The bottom one (`transparent_base`) is
-about ten times stiffer than the two above it, so it is treated as the rigid base the compliant layers are bonded
-to, and the compliant layers are merged into one layer with an effective modulus (see `compliant_layer`). Both
-the contact models (contact.py, contact_solver.py) and the particle displacement below use that one layer, so the
-forces and the particle motion come from the same material. docs/simulator-physics.md justifies every choice.
+about seven times stiffer than the two above it (plane-strain modulus 1505 kPa against their series 207 kPa), so it
+is treated as the rigid base the compliant layers are bonded to (`rigid_base`), and the compliant layers are merged
+into one layer with an effective modulus (see `compliant_layer`). Both the contact models (contact.py,
+contact_solver.py) and the particle displacement below use that one layer, so the forces and the particle motion
+come from the same material. docs/simulator-physics.md justifies every choice.
 
 Particle displacement (`GelDisplacement`): each loaded bin is a force at its centre, spread over about the bin's
 area; the displacement of a point at depth zeta is the exact Green's function of the bonded layer (Fourier-Hankel
@@ -29,10 +30,10 @@ from scipy.sparse import csc_matrix
 from scipy.spatial import cKDTree
 from scipy.special import j0, j1
 
-from tactile_description import SensorDescription
+from tactile_description import GelLayer, SensorDescription
 
 #: The bottom gel layer is treated as a rigid base when its plane-strain modulus is at least this many times the
-#: effective modulus of the layers above it (the reference sensor: 1200 kPa over ~180 kPa, a ratio of ~7).
+#: effective modulus of the layers above it (the reference sensor: 1505 kPa over 207 kPa, a ratio of 7.3).
 RIGID_BASE_STIFFNESS_RATIO = 5.0
 
 #: Default influence radius of a bin force on the particles, in compliant-layer thicknesses (see docs).
@@ -76,13 +77,17 @@ def compliant_layer(sensor: SensorDescription) -> CompliantLayer:
     a contact a few millimetres wide (docs/simulator-physics.md, "The gel").
     """
     layers = sensor.gel_layers
-    if len(layers) == 1:
-        return _merge_layers(layers)
-    upper = _merge_layers(layers[1:])
-    base = _merge_layers(layers[:1])
-    if base.plane_strain_modulus_pa >= RIGID_BASE_STIFFNESS_RATIO * upper.plane_strain_modulus_pa:
-        return upper
-    return _merge_layers(layers)
+    return _merge_layers(layers[1:] if rigid_base(sensor) is not None else layers)
+
+
+def rigid_base(sensor: SensorDescription) -> GelLayer | None:
+    """The bottom gel layer when it is much stiffer than the layers above it (RIGID_BASE_STIFFNESS_RATIO): the rigid
+    base that does not deform; None when every layer deforms (a single layer sits on the rigid camera board)."""
+    layers = sensor.gel_layers
+    if len(layers) > 1 and (_merge_layers(layers[:1]).plane_strain_modulus_pa
+                            >= RIGID_BASE_STIFFNESS_RATIO * _merge_layers(layers[1:]).plane_strain_modulus_pa):
+        return layers[0]
+    return None
 
 
 def _layer_spectra(q: np.ndarray, depth: np.ndarray, layer: CompliantLayer) -> dict[str, np.ndarray]:

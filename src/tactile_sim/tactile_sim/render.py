@@ -90,7 +90,11 @@ class ParticleRenderer:
         self.window_radius = max(1, math.ceil(self.optics.window_sigmas * self.max_sigma_px))
         r = self.window_radius
         self._padded = (self.height + 2 * r, self.width + 2 * r)
-        self._canvas_size = self.n_cameras * self._padded[0] * self._padded[1]
+        # The cameras' padded images, then a tail that catches what falls outside all of them: a visible spot's
+        # window reaches r rows (and r pixels) past the last camera's padding, and one above the first camera's
+        # has negative taps (numpy counts them from the end). crop_canvas ignores the tail.
+        self._cameras_size = self.n_cameras * self._padded[0] * self._padded[1]
+        self._canvas_size = self._cameras_size + (r + 1) * self._padded[1]
         offsets = np.arange(-r, r + 1)
         self._offsets = offsets.astype(np.float32)
         self._taps = (offsets[:, None] * self._padded[1] + offsets[None, :]).ravel()   # flat window offsets
@@ -274,7 +278,9 @@ class ParticleRenderer:
 
         The Gaussian is separable, so a window is the outer product of two 1-D profiles. A spot whose centre
         pixel lies more than the window radius outside the image gets zero weights (it cannot reach a visible
-        pixel by more than exp(-window_sigmas^2 / 2) of its peak). The spot index runs along the last axis:
+        pixel by more than exp(-window_sigmas^2 / 2) of its peak). Taps of a visible spot that fall outside its
+        camera's padded image land in another camera's padding or in the canvas' tail, never in a visible pixel
+        (see __init__). The spot index runs along the last axis:
         numpy broadcasts over a long inner axis many times faster than over a 5-long one.
         """
         r = self.window_radius
@@ -306,7 +312,7 @@ class ParticleRenderer:
         """The visible (C, H, W) part of a flat padded canvas (a view)."""
         r = self.window_radius
         hp, wp = self._padded
-        return canvas.reshape(self.n_cameras, hp, wp)[:, r:r + self.height, r:r + self.width]
+        return canvas[:self._cameras_size].reshape(self.n_cameras, hp, wp)[:, r:r + self.height, r:r + self.width]
 
     def render(self, positions_m: np.ndarray) -> np.ndarray:
         """(C, H, W) float32 image with every particle drawn afresh at `positions_m` (N, 3): the slow, exact path."""

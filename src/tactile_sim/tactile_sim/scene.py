@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -22,14 +23,28 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tactile_description import SensorDescription, default_sensor_path
-from tactile_description.yaml_fields import YamlFields
-from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, max_depth_m
+from tactile_description import BinGrid, SensorDescription, default_sensor_path
+from tactile_description.yaml_fields import YamlFields, is_number
+from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, press_problem
 from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
+from tactile_sim.elastic import compliant_layer
 
 MM = 1e-3
 SEGMENT_KINDS = ("rest", "press", "contacts", "press_grid", "random_presses", "path")
 REGIONS = ("surface", "edges", "corners")
+
+#: What a scene's name may be: previews and progress bars are named after it, so a safe file name.
+SCENE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,99}")
+
+#: Most frames a scene may have (all segments together): 10 million frames of the reference sensor are 640 GB.
+MAX_FRAMES = 10_000_000
+
+#: Largest indenter diameter a scene may name, mm (twice the reference surface); the sensor's gel then limits the
+#: sphere's depth and the punch's diameter further (contact.press_problem).
+MAX_DIAMETER_MM = 100.0
+
+#: random_presses draws a frame's centres by rejection: this many tries per contact before it gives up (SceneError).
+TRIES_PER_CONTACT = 64
 
 
 def _fields(node, where: str) -> YamlFields:
@@ -40,9 +55,9 @@ def _indenter(node, where: str) -> Shape:
     n = _fields(node, where)
     kind = n.raw("shape", required=True)
     if kind == "sphere":
-        shape: Shape = Sphere(0.5 * n.number("diameter_mm", low=0.1, high=1000) * MM)
+        shape: Shape = Sphere(0.5 * n.number("diameter_mm", low=0.1, high=MAX_DIAMETER_MM) * MM)
     elif kind == "flat_punch":
-        shape = FlatPunch(0.5 * n.number("diameter_mm", low=0.1, high=1000) * MM)
+        shape = FlatPunch(0.5 * n.number("diameter_mm", low=0.1, high=MAX_DIAMETER_MM) * MM)
     else:
         raise SceneError(f"{where}.shape must be 'sphere' or 'flat_punch', got {kind!r}")
     n.finish()
@@ -52,21 +67,31 @@ def _indenter(node, where: str) -> Shape:
 # --- segments -------------------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
+class Extremes:
+    """The deepest press and the longest shear of one indenter in a segment (`where`: its key path), which
+    Scene.validate checks against the sensor."""
+
+    where: str
+    shape: Shape
+    depth_m: float
+    shear_m: float
+
+
+@dataclass(frozen=True)
 class Segment:
-    """One timeline entry: `kind`, its parameters (SI) and its frame count."""
+    """One timeline entry: `kind`, its parameters (SI), its frame count and its presses' extremes."""
 
     kind: str
     params: dict
     n_frames: int
-    shapes: tuple[Shape, ...]
-    deepest_m: float
+    extremes: tuple[Extremes, ...]
     where: str
 
     def frames(self, rng: np.random.Generator, grid) -> Iterator[tuple[Contact, ...]]:
         return _GENERATORS[self.kind](self.params, rng, grid, self.n_frames)
 
 
-def _contact(node, where: str, default_shape: Shape) -> tuple[Contact, Shape]:
+def _contact(node, where: str, default_shape: Shape) -> Contact:
     n = _fields(node, where)
     shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
     x = n.number("x_mm") * MM
@@ -75,7 +100,31 @@ def _contact(node, where: str, default_shape: Shape) -> tuple[Contact, Shape]:
     shear = tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0]))
     friction = n.number("friction", 1.0, low=0.0, high=10.0)
     n.finish()
-    return Contact(x, y, depth, shape, shear, friction), shape
+    return Contact(x, y, depth, shape, shear, friction)
+
+
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:
+    per_frame = n.raw("contacts_per_frame", 1)
+    if _is_count(per_frame):
+        per_frame = [per_frame, per_frame]
+    if not (isinstance(per_frame, list) and len(per_frame) == 2 and all(_is_count(v) for v in per_frame)
+            and 1 <= per_frame[0] <= per_frame[1] <= 16):
+        raise SceneError(f"{n.where}.contacts_per_frame must be an integer or [min, max] with 1 <= min <= max <= 16, "
+                         f"got {per_frame!r}")
+    return per_frame[0], per_frame[1]
+
+
+def _waypoints_m(n: YamlFields) -> np.ndarray:
+    waypoints = n.raw("waypoints_mm", required=True)
+    if not (isinstance(waypoints, list) and len(waypoints) >= 2 and all(
+            isinstance(w, list) and len(w) == 2 and all(is_number(v) for v in w) for w in waypoints)):
+        raise SceneError(f"{n.where}.waypoints_mm must list at least two [x, y] points (finite numbers, mm), "
+                         f"got {waypoints!r}")
+    return np.asarray(waypoints, dtype=np.float64) * MM
 
 
 def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
@@ -87,31 +136,28 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
     where = f"{where}.{kind}"
     n = _fields(body, where)
     shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
-    params: dict = {"shape": shape}
+    params: dict = {"shape": shape, "where": where}
     if kind == "rest":
-        count, deepest = n.count("frames"), 0.0
+        count, deepest, shear = n.count("frames"), 0.0, 0.0  # presses nothing: no extremes (below)
     elif kind == "press":
         depths = n.raw("depths_mm", required=True)
-        if not (isinstance(depths, list) and depths and all(
-                isinstance(d, (int, float)) and not isinstance(d, bool) and math.isfinite(d) and d >= 0
-                for d in depths)):
+        if not (isinstance(depths, list) and depths and all(is_number(d) and d >= 0 for d in depths)):
             raise SceneError(f"{where}.depths_mm must be a non-empty list of depths >= 0 (mm), got {depths!r}")
         params.update(x_m=n.number("x_mm") * MM, y_m=n.number("y_mm") * MM,
                       depths_m=tuple(d * MM for d in depths),
                       shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])),
                       friction=n.number("friction", 1.0, low=0.0, high=10.0))
-        count, deepest = len(depths), max(depths) * MM
+        count, deepest, shear = len(depths), max(depths) * MM, math.hypot(*params["shear_m"])
     elif kind == "contacts":
         items = n.raw("contacts", required=True)
         if not (isinstance(items, list) and items):
             raise SceneError(f"{where}.contacts must be a non-empty list of contacts, got {items!r}")
-        parsed = [_contact(c, f"{where}.contacts[{i}]", shape) for i, c in enumerate(items)]
-        params["contacts"] = tuple(c for c, _ in parsed)
+        wheres = [f"{where}.contacts[{i}]" for i in range(len(items))]
+        params["contacts"] = tuple(_contact(c, w, shape) for c, w in zip(items, wheres, strict=True))
         count = n.count("repeat", 1)
-        deepest = max(c.depth_m for c, _ in parsed)
-        shapes = tuple(s for _, s in parsed)
         n.finish()
-        return Segment(kind, params, count, shapes, deepest, where)
+        return Segment(kind, params, count, tuple(Extremes(w, c.shape, c.depth_m, math.hypot(*c.shear_m))
+                                                  for c, w in zip(params["contacts"], wheres, strict=True)), where)
     elif kind == "press_grid":
         params.update(cols=n.count("cols"), rows=n.count("rows"), margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
                       jitter_m=n.number("jitter_mm", 0.0, low=0.0) * MM,
@@ -120,19 +166,12 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
                       shear_m=tuple(v * MM for v in n.span("shear_mm")) if n.has("shear_mm") else None,
                       friction=n.number("friction", 1.0, low=0.0, high=10.0))
         count = params["cols"] * params["rows"] * params["per_position"]
-        deepest = params["depth_m"][1]
+        deepest, shear = params["depth_m"][1], params["shear_m"][1] if params["shear_m"] else 0.0
     elif kind == "random_presses":
         region = n.raw("region", "surface")
         if region not in REGIONS:
             raise SceneError(f"{where}.region must be one of {list(REGIONS)}, got {region!r}")
-        per_frame = n.raw("contacts_per_frame", 1)
-        if isinstance(per_frame, int) and not isinstance(per_frame, bool):
-            per_frame = [per_frame, per_frame]
-        if not (isinstance(per_frame, list) and len(per_frame) == 2 and all(isinstance(v, int) for v in per_frame)
-                and 1 <= per_frame[0] <= per_frame[1] <= 16):
-            raise SceneError(f"{where}.contacts_per_frame must be an integer or [min, max] with 1 <= min <= max <= 16, "
-                             f"got {per_frame!r}")
-        params.update(region=region, contacts_per_frame=tuple(per_frame),
+        params.update(region=region, contacts_per_frame=_contacts_per_frame(n),
                       depth_m=tuple(v * MM for v in n.span("depth_mm")),
                       shear_m=tuple(v * MM for v in n.span("shear_mm", [0.0, 0.0])),
                       margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
@@ -141,23 +180,18 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
                       friction=n.number("friction", 1.0, low=0.0, high=10.0))
         if params["edge_band_m"][0] > params["edge_band_m"][1]:
             raise SceneError(f"{where}.edge_band_mm must be [inner, outer] signed distances with inner <= outer")
-        count, deepest = n.count("frames"), params["depth_m"][1]
+        count, deepest, shear = n.count("frames"), params["depth_m"][1], params["shear_m"][1]
     else:  # path
-        waypoints = n.raw("waypoints_mm", required=True)
-        if not (isinstance(waypoints, list) and len(waypoints) >= 2 and all(
-                isinstance(w, list) and len(w) == 2 and all(isinstance(v, (int, float)) for v in w)
-                for w in waypoints)):
-            raise SceneError(f"{where}.waypoints_mm must list at least two [x, y] points (mm), got {waypoints!r}")
         count = n.count("frames", low=2)
-        params.update(waypoints_m=np.asarray(waypoints, dtype=np.float64) * MM,
+        params.update(waypoints_m=_waypoints_m(n),
                       depth_m=n.number("depth_mm", low=0) * MM,
                       ramp_frames=n.count("ramp_frames", 0, low=0),
                       shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])))
         if 2 * params["ramp_frames"] > count:
             raise SceneError(f"{where}.ramp_frames ({params['ramp_frames']}) must be at most half of frames ({count})")
-        deepest = params["depth_m"]
+        deepest, shear = params["depth_m"], math.hypot(*params["shear_m"])
     n.finish()
-    return Segment(kind, params, count, (shape,), deepest, where)
+    return Segment(kind, params, count, () if kind == "rest" else (Extremes(where, shape, deepest, shear),), where)
 
 
 def _rest(p, rng, grid, n):
@@ -220,12 +254,15 @@ def _edge_point(region: str, band: tuple[float, float], rng, grid) -> tuple[floa
 
 
 def _random_presses(p, rng, grid, n):
+    """Frames of k contacts (k uniform in contacts_per_frame): centres drawn one by one, a centre closer than
+    min_separation to one already placed is drawn again; after TRIES_PER_CONTACT * k draws without k centres the
+    scene is refused (SceneError) rather than given fewer contacts than it asks for."""
     low, high = p["contacts_per_frame"]
     margin = p["margin_m"]
-    for _ in range(n):
+    for frame in range(n):
         k = int(rng.integers(low, high + 1))
         contacts: list[Contact] = []
-        for _ in range(64 * k):  # rejection sampling of well separated centres; gives up quietly on crowding
+        for _ in range(TRIES_PER_CONTACT * k):
             if len(contacts) == k:
                 break
             if p["region"] == "surface":
@@ -239,6 +276,10 @@ def _random_presses(p, rng, grid, n):
             angle = float(rng.uniform(0.0, 2.0 * math.pi))
             contacts.append(Contact(x, y, float(rng.uniform(*p["depth_m"])), p["shape"], _shear(magnitude, angle),
                                     p["friction"]))
+        if len(contacts) < k:
+            raise SceneError(f"{p['where']}: frame {frame} of the segment found room for only {len(contacts)} of "
+                             f"{k} contacts {p['min_separation_m'] / MM:g} mm apart in {TRIES_PER_CONTACT * k} "
+                             f"tries; lower contacts_per_frame or min_separation_mm")
         yield tuple(contacts)
 
 
@@ -257,6 +298,45 @@ def _path(p, rng, grid, n):
 
 _GENERATORS = {"rest": _rest, "press": _press, "contacts": _contacts, "press_grid": _press_grid,
                "random_presses": _random_presses, "path": _path}
+
+
+# --- checks against the sensor's surface ----------------------------------------------------------------------------
+
+def _check_margin(p, where: str, grid: BinGrid) -> None:
+    if 2 * p["margin_m"] >= min(grid.width_m, grid.length_m):
+        raise SceneError(f"{where}.margin_mm ({p['margin_m'] / MM:g} mm) leaves no room on the {grid.width_m / MM:g} "
+                         f"x {grid.length_m / MM:g} mm surface: it must be less than half its shorter side")
+
+
+def _check_press_grid(p, where: str, grid: BinGrid) -> None:
+    """The margin leaves room, and the jitter keeps every press centre on the surface."""
+    _check_margin(p, where, grid)
+    spacing = min((grid.width_m - 2 * p["margin_m"]) / p["cols"], (grid.length_m - 2 * p["margin_m"]) / p["rows"])
+    limit = p["margin_m"] + 0.5 * spacing
+    if p["jitter_m"] > limit:
+        raise SceneError(f"{where}.jitter_mm ({p['jitter_m'] / MM:g} mm) would move presses off the surface: it must "
+                         f"be at most margin_mm plus half the grid spacing, {limit / MM:.4g} mm here")
+
+
+def _check_random_presses(p, where: str, grid: BinGrid) -> None:
+    """The margin leaves room, and the most contacts of a frame can be min_separation apart in the rectangle the
+    centres are drawn from (necessary: no two farther apart than its diagonal, and the discs of diameter
+    min_separation around them, disjoint, inside the rectangle grown by half that)."""
+    if p["region"] == "surface":
+        _check_margin(p, where, grid)
+        outside = -p["margin_m"]
+    else:
+        outside = max(-p["edge_band_m"][0], 0.0)
+    box = (grid.width_m + 2 * outside, grid.length_m + 2 * outside)
+    k, separation = p["contacts_per_frame"][1], p["min_separation_m"]
+    if k > 1 and (separation > math.hypot(*box)
+                  or k * math.pi / 4 * separation**2 > (box[0] + separation) * (box[1] + separation)):
+        raise SceneError(f"{where}.min_separation_mm ({separation / MM:g} mm): {k} contacts that far apart cannot fit "
+                         f"in the {box[0] / MM:.4g} x {box[1] / MM:.4g} mm the centres are drawn from; lower "
+                         f"min_separation_mm or contacts_per_frame")
+
+
+_SURFACE_CHECKS = {"press_grid": _check_press_grid, "random_presses": _check_random_presses}
 
 
 # --- the scene ------------------------------------------------------------------------------------------------------
@@ -278,13 +358,15 @@ class Scene:
         return total if self.frame_limit is None else min(total, self.frame_limit)
 
     def limited(self, frames: int) -> Scene:
-        """The first `frames` frames of this scene (same contacts and effects as the full scene's prefix)."""
+        """The first `frames` frames of this scene (same contacts and effects as the full scene's prefix); never
+        longer than the scene already is."""
         if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
             raise SceneError(f"the frame limit must be an integer >= 1, got {frames!r}")
-        return replace(self, frame_limit=frames)
+        return replace(self, frame_limit=frames if self.frame_limit is None else min(frames, self.frame_limit))
 
     def contacts(self, sensor: SensorDescription) -> Iterator[tuple[Contact, ...]]:
-        """The contacts of each frame, in order (lazy; one tuple per frame)."""
+        """The contacts of each frame, in order (lazy; one tuple per frame); validates the scene first."""
+        self.validate(sensor)
         emitted, total = 0, len(self)
         for i, segment in enumerate(self.segments):
             for contacts in segment.frames(np.random.default_rng([self.seed, 0, i]), sensor.grid):
@@ -294,14 +376,23 @@ class Scene:
                 emitted += 1
 
     def validate(self, sensor: SensorDescription) -> None:
-        """Check what needs the sensor: depths within max_depth_m, effect cameras among the sensor's."""
+        """Check what needs the sensor, with errors naming the file and key: every indenter and depth within the
+        contact models' range (contact.press_problem, each contact against its own indenter), shears at most the
+        compliant gel's thickness, margins, jitter and separations that fit the surface, effect cameras among the
+        sensor's."""
+        max_shear_m = compliant_layer(sensor).thickness_m
         for segment in self.segments:
-            for shape in segment.shapes:
-                limit = max_depth_m(sensor, shape)
-                if segment.deepest_m > limit:
-                    raise SceneError(f"{self.source}: {segment.where} presses {segment.deepest_m / MM:.4g} mm deep, "
-                                     f"deeper than the deepest allowed press of {limit / MM:.4g} mm for {shape} on "
-                                     f"sensor {sensor.name!r}; use a smaller depth")
+            for extremes in segment.extremes:
+                problem = press_problem(sensor, extremes.shape, extremes.depth_m)
+                if problem is not None:
+                    raise SceneError(f"{extremes.where}: {problem}")
+                if extremes.shear_m > max_shear_m:
+                    raise SceneError(f"{extremes.where}.shear_mm: a shear of {extremes.shear_m / MM:.4g} mm is longer "
+                                     f"than the {max_shear_m / MM:.4g} mm compliant gel of sensor {sensor.name!r} is "
+                                     f"thick; the contact models keep the contact where it was pressed, which holds "
+                                     f"for a shear short against the gel: shear at most {max_shear_m / MM:.4g} mm")
+            if segment.kind in _SURFACE_CHECKS:
+                _SURFACE_CHECKS[segment.kind](segment.params, segment.where, sensor.grid)
         ctx = self.effect_context(sensor)
         for effect in self.effects:
             effect.camera_mask(ctx)
@@ -321,8 +412,9 @@ def parse_scene(raw, source: str = "scene") -> Scene:
     """A Scene from an already loaded YAML mapping (`source` names it in errors)."""
     n = _fields(raw, source)
     name = n.raw("name", required=True)
-    if not isinstance(name, str) or not name:
-        raise SceneError(f"{source}.name must be a non-empty string, got {name!r}")
+    if not (isinstance(name, str) and SCENE_NAME.fullmatch(name)):
+        raise SceneError(f"{source}.name must be a file name of letters, digits, '_', '-' and '.' (not first), at "
+                         f"most 100 characters (previews are named after it), got {name!r}")
     description = n.raw("description", "")
     seed = n.count("seed", low=0)
     default_shape = _indenter(n.raw("indenter"), f"{source}.indenter") if n.has("indenter") else Sphere(0.005)
@@ -330,6 +422,11 @@ def parse_scene(raw, source: str = "scene") -> Scene:
     if not (isinstance(timeline, list) and timeline):
         raise SceneError(f"{source}.timeline must be a non-empty list of segments {list(SEGMENT_KINDS)}")
     segments = tuple(_parse_segment(e, f"{source}.timeline[{i}]", default_shape) for i, e in enumerate(timeline))
+    total = 0
+    for segment in segments:
+        total += segment.n_frames
+        if total > MAX_FRAMES:
+            raise SceneError(f"{segment.where}: the scene reaches {total} frames here, more than {MAX_FRAMES}")
     effects_raw = n.raw("effects", [])
     if not isinstance(effects_raw, list):
         raise SceneError(f"{source}.effects must be a list of effects, got {effects_raw!r}")

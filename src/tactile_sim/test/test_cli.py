@@ -67,3 +67,25 @@ def test_a_reader_that_goes_away_ends_the_command_quietly():
     process.stdout.close()
     _, stderr = process.communicate(timeout=300)
     assert process.returncode == 141 and "Traceback" not in stderr, stderr
+
+
+def test_unusable_paths_unsafe_names_and_huge_counts_get_one_line_and_status_2(tmp_path, capsys):
+    from tactile_sim.cli import main
+
+    def refused(*argv):
+        assert main(list(argv)) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err, err
+        return err
+
+    assert "error: Not a directory: /dev/null/x" in refused("generate", "--scene", "demo", "--out", "/dev/null/x",
+                                                              "--frames", "2")
+    unsafe = tmp_path / "unsafe.yaml"
+    unsafe.write_text("name: ../x\nseed: 1\ntimeline: [{rest: {frames: 2}}]\n")
+    assert "name must be a file name" in refused("render", "--scene", str(unsafe), "--out", str(tmp_path / "p"))
+    huge = tmp_path / "huge.yaml"
+    huge.write_text("name: huge\nseed: 1\ntimeline: [{rest: {frames: 100000000000000000000}}]\n")
+    assert "more than 10000000" in refused("generate", "--scene", str(huge), "--out", str(tmp_path / "d"))
+    assert not (tmp_path / "d").exists()
+    assert "a / h = 2.5, above 1" in refused("press", "--x-mm", "20", "--y-mm", "20", "--depth-mm", "1", "--shape",
+                                             "punch", "--radius-mm", "10")

@@ -9,21 +9,34 @@ import pytest
 
 from tactile_description import load_sensor
 from tactile_sim.contact import (
+    MAX_SPHERE_CHI,
     Contact,
     FlatPunch,
     HeightMap,
     Sphere,
-    contact_force_n,
     dimitriadis_factor,
     ground_truth_model,
     max_depth_m,
+    normal_load,
     press_contact,
     press_report,
     reference_press,
+    stick_depth_m,
 )
 from tactile_sim.elastic import compliant_layer
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
+
+
+def whole_contact_force_n(sensor, contact):
+    """(3,) force of the whole contact, off-surface part included: Hertz / Sneddon with the thin-layer factor, and
+    the Cattaneo-Mindlin tangential force Q = mu [P(d) - P(d')] along the shear (d' the stick zone's depth)."""
+    layer = compliant_layer(sensor)
+    normal = normal_load(layer, contact.shape, contact.depth_m).force_n
+    tangential = contact.friction * (normal - normal_load(layer, contact.shape, stick_depth_m(layer, contact)).force_n)
+    shear = math.hypot(*contact.shear_m)
+    direction = np.array(contact.shear_m) / shear if shear > 0 else np.zeros(2)
+    return np.array([*(tangential * direction), normal])
 
 
 @pytest.mark.parametrize("name", ["sensor.yaml", "skin_3x3.yaml"])
@@ -68,7 +81,8 @@ def test_bin_forces_sum_to_the_contact_force(sensor, model):
     for contact in [Contact(0.0213, 0.0187, 1.2e-3, shear_m=(2e-4, -1e-4), friction=0.8),
                     Contact(0.03, 0.02, 0.7e-3, FlatPunch(0.003), shear_m=(-1e-5, 0.0))]:
         forces = model.bin_forces([contact])
-        np.testing.assert_allclose(forces.sum(axis=(0, 1)), contact_force_n(sensor, contact), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(forces.sum(axis=(0, 1)), whole_contact_force_n(sensor, contact), rtol=1e-12,
+                                   atol=1e-15)
 
 
 def test_zero_depth_gives_exactly_zero(model):
@@ -84,7 +98,7 @@ def test_vanishing_depth_is_finite_and_tiny(sensor, model, shape):
     assert np.all(np.isfinite(forces))
     assert 0.0 < forces[..., 2].sum() < 1e-9
     assert np.all(forces[..., 2] >= 0.0)
-    np.testing.assert_allclose(forces.sum(axis=(0, 1)), contact_force_n(sensor, contact), rtol=1e-12)
+    np.testing.assert_allclose(forces.sum(axis=(0, 1)), whole_contact_force_n(sensor, contact), rtol=1e-12)
 
 
 def test_centre_on_a_bin_corner_splits_evenly(sensor, model):
@@ -97,7 +111,7 @@ def test_centre_on_a_bin_corner_splits_evenly(sensor, model):
 
 
 def test_edges_corners_and_off_surface_keep_only_the_surface_part(sensor, model):
-    full = contact_force_n(sensor, Contact(0.0, 0.0, 1e-3))[2]
+    full = normal_load(compliant_layer(sensor), Sphere(), 1e-3).force_n
     width, length = sensor.grid.width_m, sensor.grid.length_m
     edge = model.bin_forces([Contact(0.0, 0.5 * length, 1e-3)])
     corner = model.bin_forces([Contact(width, length, 1e-3)])
@@ -128,13 +142,32 @@ def test_deepest_press_is_allowed_and_deeper_raises(sensor, model):
     assert max_depth_m(sensor, HeightMap(np.array([[0.0, 3e-4]]), 1e-4)) == 3e-4
 
 
+@pytest.mark.parametrize("model_name", ["analytic", "numerical"])
+def test_indenters_outside_the_thin_layer_fits_are_refused(sensor, model_name):
+    """Far outside the fits (a 400 mm sphere 2 mm deep: chi = 5, twice the exact force; a 20 mm punch: a / h = 2.5,
+    104 N instead of 48 N) the models refuse the press instead of answering wrongly; at the limits they answer."""
+    model = ground_truth_model(sensor, model_name)
+    h = compliant_layer(sensor).thickness_m
+    centre = sensor.grid.centre_m
+    assert max_depth_m(sensor, Sphere(0.2)) == pytest.approx((MAX_SPHERE_CHI * h) ** 2 / 0.2)
+    for contact, message in [(Contact(*centre, 2e-3, Sphere(0.2)), r"chi = sqrt\(R d\) / h at most 0.8"),
+                             (Contact(*centre, 1e-3, Sphere(1e9)), r"chi = sqrt\(R d\) / h at most 0.8"),
+                             (Contact(*centre, 1e-3, FlatPunch(0.010)), r"a / h = 2.5, above 1")]:
+        with pytest.raises(ValueError, match=message):
+            model.bin_forces([contact])
+    widest_punch = Contact(10e-3, 10e-3, 1e-3, FlatPunch(h))
+    for contact in [Contact(*centre, max_depth_m(sensor, Sphere(0.02)), Sphere(0.02)), widest_punch]:
+        forces = model.bin_forces([contact])
+        assert np.all(np.isfinite(forces)) and forces[..., 2].sum() > 0.5
+
+
 def test_shear_gives_mindlin_partial_slip_along_the_shear(sensor, single_layer):
     """Half-space Hertz + Mindlin (Johnson eq. 7.42): Q = mu P [1 - (1 - delta / delta_slip)^(3/2)]."""
     thick = single_layer(sensor, 100.0, poisson_ratio=0.45)
     model = ground_truth_model(thick)
     layer = compliant_layer(thick)
     radius, depth, mu = 0.005, 1e-3, 0.6
-    p = contact_force_n(thick, Contact(0.02, 0.02, depth))[2]
+    p = normal_load(layer, Sphere(radius), depth).force_n
     a = math.sqrt(radius * depth)
     delta_slip = 3 * mu * p * (2 - layer.poisson_ratio) / (16 * layer.shear_modulus_pa * a)
     direction = np.array([0.6, -0.8])

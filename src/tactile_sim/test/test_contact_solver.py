@@ -8,7 +8,16 @@ import numpy as np
 import pytest
 
 from tactile_description import load_sensor
-from tactile_sim.contact import Contact, FlatPunch, HeightMap, Sphere, ground_truth_model, reference_press
+from tactile_sim.contact import (
+    MAX_SPHERE_CHI,
+    Contact,
+    FlatPunch,
+    HeightMap,
+    Sphere,
+    ground_truth_model,
+    max_depth_m,
+    reference_press,
+)
 from tactile_sim.contact_solver import NumericalContactModel, layer_compliance_factor, surface_influence
 from tactile_sim.elastic import CompliantLayer, compliant_layer
 
@@ -83,6 +92,16 @@ def test_flat_punch_agrees_with_the_analytic_model(sensor, model, analytic, radi
     contact = Contact(*sensor.grid.centre_m, 0.2e-3, FlatPunch(radius_m))
     assert model.bin_forces([contact])[..., 2].sum() == pytest.approx(
         analytic.bin_forces([contact])[..., 2].sum(), rel=0.1)
+
+
+@pytest.mark.parametrize("radius_m", [5e-3, 10e-3])
+def test_spheres_at_the_largest_allowed_chi_agree_with_the_analytic_model(sensor, model, analytic, radius_m):
+    """At the deepest allowed press (chi = 0.79 for the 10 mm sphere 2 mm deep, MAX_SPHERE_CHI = 0.8 for a 20 mm
+    sphere 1.02 mm deep) the Dimitriadis series is within 7 % of the exact layer compliance."""
+    contact = Contact(*sensor.grid.centre_m, max_depth_m(sensor, Sphere(radius_m)), Sphere(radius_m))
+    assert math.sqrt(radius_m * contact.depth_m) / compliant_layer(sensor).thickness_m <= MAX_SPHERE_CHI
+    assert model.bin_forces([contact])[..., 2].sum() == pytest.approx(
+        analytic.bin_forces([contact])[..., 2].sum(), rel=0.08)
 
 
 def test_height_map_of_a_sphere_matches_the_sphere(sensor, model):

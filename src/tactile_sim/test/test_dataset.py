@@ -41,11 +41,15 @@ def test_non_empty_output_is_not_overwritten_by_accident(sim, written):
         write_dataset(sim, load_scene("effects"), written, progress=False, frames=2)
 
 
-def test_truncated_array_is_reported(sim, written, tmp_path):
-    broken = tmp_path / "broken"
-    broken.mkdir()
+def _copy_of(written, directory):
+    directory.mkdir()
     for f in written.iterdir():
-        (broken / f.name).write_bytes(f.read_bytes())
+        (directory / f.name).write_bytes(f.read_bytes())
+    return directory
+
+
+def test_truncated_array_is_reported(sim, written, tmp_path):
+    broken = _copy_of(written, tmp_path / "broken")
     data = (broken / "images.npy").read_bytes()
     (broken / "images.npy").write_bytes(data[: len(data) // 2])
     with pytest.raises(DatasetError, match="images.npy is corrupt or truncated"):
@@ -61,13 +65,31 @@ def test_incomplete_and_foreign_directories_are_reported(sim, written, tmp_path)
     (incomplete / "meta.json").write_text(json.dumps(dict(meta, complete=False)))
     with pytest.raises(DatasetError, match="incomplete"):
         open_dataset(incomplete)
-    mixed = tmp_path / "mixed"
-    mixed.mkdir()
-    for f in written.iterdir():
-        (mixed / f.name).write_bytes(f.read_bytes())
+    mixed = _copy_of(written, tmp_path / "mixed")
     (mixed / "meta.json").write_text(json.dumps(dict(meta, frame_count=13)))
     with pytest.raises(DatasetError, match="meta.json promises"):
         open_dataset(mixed)
     skin = load_sensor(scenes_directory().parent / "skin_3x3.yaml")
     with pytest.raises(DatasetError, match="made for sensor 'trueeb2020_4cam'"):
         open_dataset(written, skin)
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("contacts.json", None, "lacks contacts.json"),
+    ("contacts.json", b"[[", "contacts.json is not readable UTF-8 JSON"),
+    ("contacts.json", b"[]", "contacts of each of the 12 frames .* found 0 entries"),
+    ("meta.json", b'{"format": "tactile_sim.dataset", "scene": "\xff"}', "meta.json is not readable UTF-8 JSON"),
+    ("meta.json", {"complete": "no"}, "incomplete .*complete: 'no'"),
+    ("meta.json", {"frame_count": 3.7}, "frame_count must be an integer >= 1, got 3.7"),
+    ("meta.json", {"camera_ids": "cam0"}, "camera_ids must be a non-empty list"),
+])
+def test_bad_metadata_and_contacts_are_reported(written, tmp_path, name, content, message):
+    broken = _copy_of(written, tmp_path / "broken")
+    if content is None:
+        (broken / name).unlink()
+    elif isinstance(content, dict):
+        (broken / name).write_text(json.dumps(dict(json.loads((written / name).read_text()), **content)))
+    else:
+        (broken / name).write_bytes(content)
+    with pytest.raises(DatasetError, match=message):
+        open_dataset(broken)

@@ -153,6 +153,14 @@ def test_effects_run_in_imaging_order_whatever_the_file_order():
     assert np.std(images) == pytest.approx(1.0, rel=0.1)
 
 
+def test_effects_of_one_stage_keep_the_file_order():
+    blur = {"type": "defocus_blur", "sigma_px": 1.0}
+    shift = {"type": "camera_misalignment", "shift_px": [3.0, 0.0]}
+    for nodes in ([blur, shift], [shift, blur]):
+        chain = bind_effects([parse_effect(n, "t") for n in nodes], CTX)
+        assert [e.spec.name for e in chain.image_effects] == [n["type"] for n in nodes]
+
+
 def test_dropout_in_a_simulated_stream_flags_the_camera():
     sensor = load_sensor()
     sim = Simulator(sensor)

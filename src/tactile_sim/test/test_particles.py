@@ -3,12 +3,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tactile_sim.particles import generate_particles, particle_layer_volume_m3
+from tactile_description import SensorConfigError
+from tactile_sim.particles import generate_particles
 
 
 def test_particles_fill_the_particle_layer_at_the_described_density(sensor):
     field = generate_particles(sensor)
-    expected = sensor.particles.per_m3 * particle_layer_volume_m3(sensor)
+    expected = sensor.particles.per_m3 * sensor.particle_layer_volume_m3
     assert abs(len(field) - expected) <= 1
     top, bottom = sensor.layer_depth_range_m(sensor.particles.layer)
     radius = field.diameters_m / 2
@@ -38,3 +39,13 @@ def test_a_layer_thinner_than_a_particle_is_refused(sensor):
                  for layer in sensor.gel_layers)
     with pytest.raises(ValueError, match="thinner than one particle"):
         generate_particles(dataclasses.replace(sensor, gel_layers=thin))
+
+
+def test_particles_in_the_rigid_base_are_refused(sensor):
+    """The base does not deform, so particles there never move and the sensor would be blind."""
+    in_base = dataclasses.replace(sensor, particles=dataclasses.replace(sensor.particles, layer="transparent_base"))
+    with pytest.raises(SensorConfigError, match="particles.layer 'transparent_base' is the gel's rigid base"):
+        generate_particles(in_base)
+    soft_base = tuple(dataclasses.replace(layer, youngs_modulus_pa=300e3) if i == 0 else layer
+                      for i, layer in enumerate(in_base.gel_layers))   # no rigid base: every layer deforms
+    assert len(generate_particles(dataclasses.replace(in_base, gel_layers=soft_base))) > 1000

@@ -8,8 +8,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from tactile_description import load_sensor
-from tactile_sim.contact import Contact, FlatPunch, Sphere, contact_force_n, ground_truth_model, max_depth_m
-from tactile_sim.elastic import GelDisplacement
+from tactile_sim.contact import Contact, FlatPunch, Sphere, ground_truth_model, max_depth_m, normal_load
+from tactile_sim.elastic import GelDisplacement, compliant_layer
 
 SENSOR = load_sensor(Path(__file__).resolve().parents[3] / "config" / "sensor.yaml")
 WIDTH, LENGTH = SENSOR.grid.width_m, SENSOR.grid.length_m
@@ -79,7 +79,8 @@ def test_total_force_grows_with_depth(contact, a, b):
     # Depths one ulp apart can round to the same force (hypothesis found 1e-100 and 1.0000000000000001e-100 times
     # the limit, both 2.18e-150 N): strict growth is asserted where float64 resolves it.
     assert f_shallow <= f_deep
-    assert f_deep == pytest.approx(contact_force_n(SENSOR, deep)[2], rel=1e-12, abs=1e-300)
+    whole = normal_load(compliant_layer(SENSOR), deep.shape, deep.depth_m).force_n  # all of it on the surface
+    assert f_deep == pytest.approx(whole, rel=1e-12, abs=1e-300)
     if deep.depth_m > shallow.depth_m * (1 + 1e-9):
         assert f_shallow < f_deep
 

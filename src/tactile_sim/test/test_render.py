@@ -147,3 +147,23 @@ def test_bad_renderer_settings_are_refused(sim):
         ParticleRenderer(sim.sensor, sim.particles, "preview")
     with pytest.raises(ValueError, match="psf_sigma_capture_px must be > 0"):
         ParticleRenderer(sim.sensor, sim.particles, "output", Optics(psf_sigma_capture_px=0.0))
+
+
+def test_spots_just_outside_each_cameras_image_draw_their_visible_part_only(sim):
+    """A spot whose centre is within the window radius outside the image (below the last camera's included) draws
+    exactly the Gaussian's taps that fall on that camera's pixels, and nothing on any other camera."""
+    renderer = sim.renderer
+    r, height, width = renderer.window_radius, renderer.height, renderer.width
+    rows, cols = np.mgrid[0:height, 0:width]
+    places = [(-r, -r), (width + r - 1, height + r - 1), (0.5 * width, height), (-r + 0.3, height + r - 1.2),
+              (width + r - 1, -r)]
+    for cam in range(renderer.n_cameras):
+        for u, v in places:
+            spots = Spots(camera_index=np.array([cam]), uv_px=np.array([[u, v]]), sigma_px=np.array([0.9]),
+                          peak=np.array([100.0]))
+            image = renderer.draw(spots)
+            cu, cv = np.rint(u), np.rint(v)
+            window = (np.abs(cols - cu) <= r) & (np.abs(rows - cv) <= r)
+            expected = np.where(window, 100.0 * np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * 0.9**2)), 0.0)
+            np.testing.assert_allclose(image[cam], expected, rtol=1e-5, atol=1e-6)
+            assert image[cam].max() > 0.0 and not np.delete(image, cam, axis=0).any()

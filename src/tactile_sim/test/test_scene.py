@@ -98,7 +98,7 @@ def _scene(**overrides):
 @pytest.mark.parametrize("raw, message", [
     (_scene(effects=[{"type": "lens_flare"}]), "unknown effect type 'lens_flare'"),
     (_scene(effects=[{"type": "sensor_noise", "sigmaa": 1}]), "has no key 'sigmaa'"),
-    (_scene(effects=[{"type": "sensor_noise", "sigma": -1}]), "'sigma' must be a number > 0"),
+    (_scene(effects=[{"type": "sensor_noise", "sigma": -1}]), r"'sigma' must be a number in \(0, 255\]"),
     (_scene(effects=[{"type": "camera_dropout"}]), "needs 'cameras'"),
     (_scene(effects=[{"type": "camera_dropout", "cameras": ["cam0"], "frames": [5, 2]}]), "first < stop"),
     (_scene(effects=[{"type": "camera_dropout", "cameras": ["cam0"], "mode": "grey"}]), "'black' or 'frozen'"),
@@ -112,6 +112,18 @@ def _scene(**overrides):
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": [1.0, 0.5]}}]), "min <= max"),
     (_scene(timeline=[{"press_grid": {"cols": 1, "rows": 1, "depth_mm": [0.1, 0.2], "depths_per_position": 1,
                                       "shear_mm": [1.0, 0.5]}}]), "shear_mm.*min <= max"),
+    (_scene(indenter={"shape": "sphere", "diameter_mm": 400}), r"indenter.diameter_mm must be a number in \[0.1, 100"),
+    (yaml.safe_load("{name: t, seed: 1, timeline: [{path: {frames: 4, depth_mm: 1, waypoints_mm: [[0, .nan], [9, 9]]}}"
+                    "]}"),
+     r"timeline\[0\].path.waypoints_mm must list at least two \[x, y\] points \(finite numbers"),
+    (_scene(timeline=[{"path": {"frames": 4, "depth_mm": 1, "waypoints_mm": [[True, 1], [9, 9]]}}]), "waypoints_mm"),
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "contacts_per_frame": [True, True]}}]),
+     "contacts_per_frame must be an integer"),
+    (_scene(name="a/b"), "name must be a file name"),
+    (_scene(name="../x"), "name must be a file name"),
+    (_scene(timeline=[{"rest": {"frames": 6_000_000}}, {"rest": {"frames": 6_000_000}}]),
+     r"timeline\[1\].rest: the scene reaches 12000000 frames here, more than 10000000"),
+    (_scene(effects=[{"type": "sensor_noise", "sigma": 1e300}]), r"'sigma' must be a number in \(0, 255\]"),
 ])
 def test_bad_scenes_get_clear_errors(raw, message):
     with pytest.raises(SceneError, match=message):
@@ -123,6 +135,67 @@ def test_depth_beyond_the_sensors_limit_is_refused(sensor):
     scene = parse_scene(_scene(timeline=[{"press": {"x_mm": 20, "y_mm": 20, "depths_mm": [limit_mm + 0.1]}}]))
     with pytest.raises(SceneError, match="deeper than the deepest allowed press"):
         scene.validate(sensor)
+
+
+def _press(**body):
+    return _scene(timeline=[{"press": dict({"x_mm": 20, "y_mm": 20, "depths_mm": [1.0]}, **body)}])
+
+
+def _grid(**body):
+    return _scene(timeline=[{"press_grid": dict({"cols": 2, "rows": 2, "depth_mm": [0.1, 1.0],
+                                                 "depths_per_position": 1}, **body)}])
+
+
+def _random(**body):
+    return _scene(timeline=[{"random_presses": dict({"frames": 3, "depth_mm": [0.1, 1.0]}, **body)}])
+
+
+@pytest.mark.parametrize("raw, message", [
+    (_press(indenter={"shape": "sphere", "diameter_mm": 40}, depths_mm=[2.0]),
+     r"test.yaml.timeline\[0\].press: a press 2 mm deep is deeper than the deepest allowed press of 0.512 mm .*"
+     r"chi = sqrt\(R d\) / h at most 0.8"),
+    (_press(indenter={"shape": "flat_punch", "diameter_mm": 20}),
+     r"timeline\[0\].press: a flat punch 20 mm in diameter .* a / h = 2.5, above 1, .* at most 8 mm in diameter"),
+    (_scene(timeline=[{"contacts": {"contacts": [
+        {"x_mm": 10, "y_mm": 10, "depth_mm": 1.5},
+        {"x_mm": 30, "y_mm": 30, "depth_mm": 1.2, "indenter": {"shape": "sphere", "diameter_mm": 2}}]}}]),
+     r"timeline\[0\].contacts.contacts\[1\]: a press 1.2 mm deep .* allowed press of 1 mm .*the sphere's radius"),
+    (_random(margin_mm=30), r"random_presses.margin_mm \(30 mm\) leaves no room on the 49 x 51 mm surface"),
+    (_grid(margin_mm=40), r"press_grid.margin_mm \(40 mm\) leaves no room"),
+    (_random(contacts_per_frame=[3, 3], min_separation_mm=100),
+     r"random_presses.min_separation_mm \(100 mm\): 3 contacts that far apart cannot fit in the 49 x 51 mm"),
+    (_grid(jitter_mm=1000), r"press_grid.jitter_mm \(1000 mm\) would move presses off the surface: .* 12.25 mm"),
+    (_press(shear_mm=[3.0, 4.0]), r"timeline\[0\].press.shear_mm: a shear of 5 mm is longer than the 4 mm"),
+    (_random(shear_mm=[0.0, 10.0]), r"random_presses.shear_mm: a shear of 10 mm"),
+])
+def test_presses_outside_the_models_or_off_the_surface_are_refused_before_any_frame(sensor, raw, message):
+    scene = parse_scene(raw, "test.yaml")
+    with pytest.raises(SceneError, match=message):
+        scene.validate(sensor)
+    with pytest.raises(SceneError, match=message):
+        next(scene.contacts(sensor))
+
+
+def test_each_contact_is_checked_against_its_own_indenter(sensor):
+    """A deep press of the default sphere beside a shallow one of a small sphere is fine."""
+    scene = parse_scene(_scene(timeline=[{"contacts": {"contacts": [
+        {"x_mm": 10, "y_mm": 10, "depth_mm": 1.5},
+        {"x_mm": 30, "y_mm": 30, "depth_mm": 0.3, "indenter": {"shape": "sphere", "diameter_mm": 2}}]}}]))
+    scene.validate(sensor)
+    assert [c.shape for c in _all_contacts(scene, sensor)[0]] == [Sphere(0.005), Sphere(0.001)]
+
+
+def test_random_presses_that_find_no_room_for_every_contact_are_refused_not_shortened(sensor):
+    """16 centres 15 mm apart would fit on a grid, but not when drawn at random one by one."""
+    scene = parse_scene(_random(frames=1, contacts_per_frame=16, min_separation_mm=15), "test.yaml")
+    scene.validate(sensor)
+    with pytest.raises(SceneError, match=r"random_presses: frame 0 of the segment found room for only \d+ of 16"):
+        _all_contacts(scene, sensor)
+
+
+def test_a_limit_never_lengthens_a_scene():
+    scene = load_scene("multi_contact")
+    assert len(scene.limited(5).limited(100)) == 5 and len(scene.limited(100).limited(5)) == 5
 
 
 def test_effect_naming_a_camera_the_sensor_lacks_is_refused(sensor):
