@@ -49,6 +49,11 @@ def camera_sources(path: str | Path, sensor: SensorDescription) -> dict[str, str
     missing = [c for c in sensor.camera_ids if c not in sources]
     if missing:
         raise ValueError(f"{path}: no source for cameras {missing}; add e.g. `{missing[0]}: /dev/video0`")
+    # A YAML null or an empty entry would become the source "None" or "": say so instead.
+    empty = [c for c in sensor.camera_ids
+             if sources[c] is None or isinstance(sources[c], bool) or str(sources[c]) == ""]
+    if empty:
+        raise ValueError(f"{path}: cameras {empty} have no source (a device index, a device path or a video file)")
     return {c: str(sources[c]) for c in sensor.camera_ids}
 
 

@@ -45,6 +45,15 @@ def test_camera_sources_must_cover_every_camera(sensor, tmp_path):
         camera_sources(partial, sensor)
 
 
+def test_a_camera_source_left_empty_is_refused_not_taken_as_the_text_none(sensor, tmp_path):
+    sources = tmp_path / "sources.yaml"
+    sources.write_text("cam0: 0\ncam1:\ncam2: ''\ncam3: /dev/video3\n")
+    with pytest.raises(ValueError, match=r"cameras \['cam1', 'cam2'\] have no source"):
+        camera_sources(sources, sensor)
+    sources.write_text("cam0: 0\ncam1: 1\ncam2: /dev/video2\ncam3: clip.mp4\n")
+    assert camera_sources(sources, sensor) == {"cam0": "0", "cam1": "1", "cam2": "/dev/video2", "cam3": "clip.mp4"}
+
+
 def test_bad_source_is_rejected(sensor):
     with pytest.raises(ValueError, match="source must be one of"):
         sensor_graph(sensor, "", "webcam")
