@@ -46,8 +46,14 @@ class GraphTools:
         return process
 
     def finish(self, process: subprocess.Popen, timeout_s: float) -> subprocess.CompletedProcess:
-        """Wait for a started tool, like subprocess.run; the test fails if the tool left processes of its group."""
-        stdout, stderr = process.communicate(timeout=timeout_s)
+        """Wait for a started tool, like subprocess.run; the test fails if the tool left processes of its group. A tool
+        that overruns `timeout_s` (or a Ctrl-C meanwhile) takes its whole group with it at once."""
+        try:
+            stdout, stderr = process.communicate(timeout=timeout_s)
+        except BaseException:
+            kill_group(process.pid)
+            process.communicate()
+            raise
         if group_alive(process.pid):
             kill_group(process.pid)
             pytest.fail(f"{process.args[0]} exited but left processes of its group running (killed now)")
