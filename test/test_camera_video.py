@@ -1,6 +1,5 @@
 """camera_node on real video files through OpenCV, and on sources that cannot be used: real processes, Fast DDS."""
 
-
 import cv2
 import numpy as np
 import pytest
@@ -8,7 +7,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from tactile_bringup.graph import NodeSpec
-from tactile_bringup.processes import start_node, stop_nodes
+from tactile_bringup.processes import spin_until, start_node, stop_nodes
 from tactile_conversions.images import msg_to_array
 from tactile_description import default_sensor_path, load_sensor
 from tactile_description.imaging import crop_and_downsample
@@ -39,9 +38,10 @@ def decoded_frames(path):
         frames.append(frame)
 
 
-def camera_spec(name: str, camera_id: str, source) -> NodeSpec:
+def camera_spec(name: str, camera_id: str, source, **parameters) -> NodeSpec:
     return NodeSpec("tactile_camera_driver", "camera_node", name,
-                    {"sensor_config": str(default_sensor_path()), "camera_id": camera_id, "source": str(source)})
+                    {"sensor_config": str(default_sensor_path()), "camera_id": camera_id, "source": str(source),
+                     **parameters})
 
 
 def test_a_video_file_is_cropped_downsampled_published_and_replayed(collect, tmp_path):
@@ -86,3 +86,36 @@ def test_a_missing_source_and_a_wrong_frame_size_are_reported_and_the_nodes_keep
     assert "cam1: cannot open camera source" in missing_log and "retrying every" in missing_log
     assert "cam2: capture frame is 160 x 120, the sensor description expects 320 x 240" in small_log
     assert images == []
+
+
+def test_a_video_file_without_loop_is_played_once_and_the_node_says_it_ended(ros_probe, tmp_path):
+    camera = load_sensor().cameras[0]
+    topic = f"/tactile/{camera.camera_id}/image"
+    written = write_video(tmp_path / "written.avi", *camera.capture_size)
+    expected = [crop_and_downsample(frame, camera) for frame in decoded_frames(written)]
+    video = tmp_path / "cam0.avi"
+    # The file appears once the probe sees the node's publisher (discovery can take seconds), so that no frame is
+    # published before the probe listens; the node retries the missing source meanwhile. `rate_hz` is an integer,
+    # as `-p rate_hz:=20` gives it.
+    process = start_node(camera_spec("video_once", camera.camera_id, video, loop=False, rate_hz=20,
+                                     reopen_period_s=0.2), tmp_path)
+    log_path = tmp_path / "video_once.log"
+    images = []
+    ros_probe.create_subscription(Image, topic, images.append, qos_profile_sensor_data)
+    try:
+        assert spin_until(ros_probe, lambda: ros_probe.count_publishers(topic) > 0, 30.0), log_path.read_text()
+        spin_until(ros_probe, lambda: False, 0.3)  # the best-effort reader and writer match
+        written.rename(video)
+        spin_until(ros_probe, lambda: "ended" in log_path.read_text(), 10.0)
+        spin_until(ros_probe, lambda: False, 1.2)  # before the fix, the node played the file again 0.2 s later
+        running = process.poll() is None
+    finally:
+        codes = stop_nodes([process])
+    log = log_path.read_text()
+    assert running and codes == [0], log
+    assert log.count(f"{camera.camera_id}: video file '{video}' ended ({VIDEO_FRAMES} frames published; loop false): "
+                     "publishing nothing more") == 1, log
+    assert log.count("reading") == 1 and "reopening" not in log, log
+    frames = [next(i for i, frame in enumerate(expected) if np.array_equal(msg_to_array(msg, camera.camera_id), frame))
+              for msg in images]
+    assert frames == list(range(VIDEO_FRAMES))  # once each, in order

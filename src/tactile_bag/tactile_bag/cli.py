@@ -81,6 +81,9 @@ def cmd_eval(args) -> int:
           f"{summary['estimates']} estimates ({summary['degraded_estimates']} without every camera)")
     if summary["skipped"]:
         print("skipped: " + ", ".join(f"{reason} {n}" for reason, n in summary["skipped"].items()))
+    if summary["cameras_without_reference"]:
+        print(f"the reference frames were taken without {', '.join(summary['cameras_without_reference'])} (no usable "
+              "image in the first bundles): their images were not used")
     if summary["off_reference_camera_ids"]:
         print(f"{summary['estimates_off_reference']} estimates while {', '.join(summary['off_reference_camera_ids'])} "
               "no longer matched the reference frames (a camera moved or was refocused, or the gel aged, after the "

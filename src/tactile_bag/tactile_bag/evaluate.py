@@ -4,11 +4,12 @@ compared with the simulator's ground truth recorded beside them.
 1. Bundles: the camera images are bundled by capture stamp with the live graph's synchroniser
    (tactile_fusion.approximate_sync, with bundle_node's default settings), or the recorded ImageBundles are
    taken as they are (a bag without every camera's images, or `source="bundles"`).
-2. Reference frames, as fusion_node takes them: the pixel-wise mean of the first `reference_bundles` complete
-   bundles (every camera present and readable), rounded to uint8. Those bundles are not estimated.
-3. Every later bundle goes through the predictor; a missing or unreadable camera is replaced by its reference
-   frame (it reports "no contact"), as in fusion_node, and the estimate counts as degraded. Whether each camera's
-   images still match its reference frame is checked as fusion_node checks it (live_estimation.ReferenceMatch).
+2.-3. The bundles go through fusion_node's own loop (tactile_fusion.live_estimation.LiveEstimation):
+   reference frames, the pixel-wise mean of the first `reference_bundles` complete bundles (every camera present
+   and readable; without the cameras that hold the capture up for `REFERENCE_PATIENCE_BUNDLES` bundles), rounded to
+   uint8, those bundles not estimated; then every later bundle through the predictor, a missing or unreadable
+   camera shown at rest (tactile_fusion.camera_out; it reports "no contact") and the estimate counted as degraded, and
+   whether each camera's images still match its reference frame checked (live_estimation.ReferenceMatch).
 4. Each estimate is matched with the ground-truth message nearest to its bundle stamp, if one lies within
    `match_tolerance_s` (the bundle stamp is the median of the cameras' capture stamps, the truth is stamped
    with the capture time), and the paper's metrics are computed over the matched pairs
@@ -35,8 +36,7 @@ from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
-from tactile_fusion.artifacts import check_model_fits
-from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, ReferenceFrames, ReferenceMatch
+from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, LiveEstimation
 from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_metrics, force_metrics
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
@@ -71,6 +71,7 @@ class BagEvaluation:
     camera_ok: np.ndarray           # (N, C) bool
     off_reference: np.ndarray | None  # (N, C) bool: the camera no longer matched its reference frame (ReferenceMatch);
     #                                   None: not checked (a reference of one bundle)
+    reference_cameras: np.ndarray   # (C,) bool: the cameras the reference frames were taken with (ReferenceFrames)
     truth_messages: int
     truth_index: np.ndarray         # (N,) index into truth_n of the matched ground truth, -1 for none
     truth_n: np.ndarray             # (M, rows, cols, 3) float32, every ground truth message of the bag
@@ -105,6 +106,8 @@ class BagEvaluation:
             "estimates": len(self.stamps_s),
             "degraded_estimates": int((~self.camera_ok).any(axis=1).sum()),
             "missing_camera_ids": missing,
+            "cameras_without_reference": [c for c, ok in zip(self.camera_ids, self.reference_cameras, strict=True)
+                                          if not ok],
             "reference_checked": self.off_reference is not None,
             "estimates_off_reference": int(off.any(axis=1).sum()),
             "off_reference_camera_ids": [c for c, o in zip(self.camera_ids, off.any(axis=0), strict=True) if o],
@@ -180,9 +183,9 @@ def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader
         msg = deserialize(raw, Image, topic, time_ns)
         for bundle in sync.add(cameras[topic], time_to_seconds(msg.header.stamp), msg):
             yield reader.frame(statistics.median(bundle.stamps), bundle.stream_ids, list(bundle.items))
-    for reason in ("out_of_order", "queue_overflow", "too_wide", "superseded"):
-        if getattr(sync.dropped, reason):
-            reader.skipped[f"images dropped by the synchroniser ({reason})"] = getattr(sync.dropped, reason)
+    for reason, count in sync.dropped.by_reason().items():
+        if count:
+            reader.skipped[f"images dropped by the synchroniser ({reason})"] = count
 
 
 def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFrame]:
@@ -246,10 +249,13 @@ def match_stamps(stamps_s: np.ndarray, truth_stamps_s: np.ndarray, tolerance_s: 
     return np.where(np.abs(sorted_truth[nearest] - stamps_s) <= tolerance_s, index, -1)
 
 
-def check_predictor(predictor: ForcePredictor, sensor: SensorDescription) -> None:
+def live_estimation(predictor: ForcePredictor, sensor: SensorDescription, reference_bundles: int) -> LiveEstimation:
+    """fusion_node's loop for the bag, or BagError when the model does not fit the sensor description."""
+    from tactile_fusion.artifacts import ModelFileError  # imports torch, which record and play do not need
+
     try:
-        check_model_fits(predictor, sensor)
-    except ValueError as exc:
+        return LiveEstimation(predictor, sensor, reference_bundles)
+    except ModelFileError as exc:
         raise BagError(f"{exc} (--model, --sensor)") from exc
 
 
@@ -262,7 +268,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
     truth_topic: None for the simulator's (optional in the bag); a topic named here must be in the bag.
     contact_level_n: the estimated total Fz from which an estimate reports contact (metrics' "contact").
     """
-    check_predictor(predictor, sensor)
+    live = live_estimation(predictor, sensor, reference_bundles)
     with BagReader(path) as bag:
         source = choose_source(bag, sensor, source)
         reader = FrameReader(sensor, predictor.image_size)
@@ -278,30 +284,27 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
             reader.skipped[reason] = bag.counts[GROUND_TRUTH_TOPIC]
             truth_stamps, truth = no_ground_truth(sensor)
         frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
-        reference = ReferenceFrames(sensor.n_cameras, reader.shape, reference_bundles)
-        match = None
         bundles = 0
         stamps, estimates, camera_ok, off_reference = [], [], [], []
         for frame in frames:
             bundles += 1
-            if reference.images is None:
-                if reference.add(frame.images, frame.camera_ok) and reference.rest_levels is not None:
-                    match = ReferenceMatch(reference.rest_levels)
+            result = live.add(frame.images, frame.camera_ok)
+            if result.for_reference:
                 continue
-            if match is not None:
-                match.add(frame.images, reference.images, frame.camera_ok)
-            if not frame.camera_ok.any():
+            if result.forces is None:
                 reader.skip("bundle without any usable image")
                 continue
-            estimates.append(predictor.predict(frame.images, reference.images, camera_ids=sensor.camera_ids,
-                                               camera_ok=frame.camera_ok))
+            estimates.append(result.forces)
             stamps.append(frame.stamp_s)
-            camera_ok.append(frame.camera_ok)
-            if match is not None:
-                off_reference.append(match.off.copy())
+            camera_ok.append(result.camera_ok)
+            if live.match is not None:
+                off_reference.append(live.match.off.copy())
+    reference = live.reference
     if reference.images is None:
         raise BagError(f"bag {path}: only {reference.frames_taken} complete bundle(s) of {bundles}, the reference "
-                       f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles")
+                       f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles "
+                       f"(the reference does without a camera that has no usable image after {reference.patience} "
+                       "bundles)")
     stamps_s = np.asarray(stamps, dtype=np.float64)
     return BagEvaluation(
         bag=str(path), source=source, camera_ids=sensor.camera_ids, bundles=bundles,
@@ -309,8 +312,9 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         estimates_n=np.stack(estimates) if estimates else np.zeros((0, sensor.grid.rows, sensor.grid.cols, 3),
                                                                     np.float32),
         camera_ok=np.array(camera_ok, bool).reshape(len(stamps), sensor.n_cameras),
-        off_reference=(np.array(off_reference, bool).reshape(len(stamps), sensor.n_cameras) if match is not None
+        off_reference=(np.array(off_reference, bool).reshape(len(stamps), sensor.n_cameras) if live.match is not None
                        else None),
+        reference_cameras=reference.cameras,
         truth_messages=len(truth_stamps), truth_index=match_stamps(stamps_s, truth_stamps, match_tolerance_s),
         truth_n=truth, bin_centers_m=sensor.grid.bin_centers_m(), skipped=reader.skipped,
         contact_level_n=contact_level_n)

@@ -1,6 +1,8 @@
 """`tactile-bag record` and `play` refuse bad input with one line and exit status 2, before any message flows."""
 
 import os
+import subprocess
+import sys
 
 import pytest
 
@@ -48,3 +50,12 @@ def test_play_a_damaged_bag(tmp_path, capsys):
 def test_play_needs_a_positive_rate(sim_bag, capsys):
     assert main(["play", str(sim_bag), "--rate", "0"]) == 2
     assert "--rate must be > 0" in error_line(capsys)
+
+
+def test_record_and_play_do_not_import_the_model_stack():
+    """torch takes a second to import; only `eval` needs it."""
+    imported = subprocess.run([sys.executable, "-c", "import sys, tactile_bag.cli; print(sorted({'torch', "
+                               "'onnxruntime', 'tactile_fusion.inference'} & set(sys.modules)))"],
+                              capture_output=True, text=True, timeout=60)
+    assert imported.returncode == 0, imported.stderr
+    assert imported.stdout.strip() == "[]"

@@ -18,6 +18,7 @@ from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
+from tactile_fusion.live_estimation import REFERENCE_PATIENCE_BUNDLES
 from tactile_fusion.metrics import contact_metrics, force_metrics
 from tactile_sim import Simulator
 from tactile_sim.scene import parse_scene
@@ -122,6 +123,23 @@ def test_a_dropped_camera_degrades_recorded_bundles(tmp_path, write_bag, sensor,
     assert summary["missing_camera_ids"] == ["cam1"]
     assert summary["estimates"] == len(frames) - 1 - last_reference
     assert summary["degraded_estimates"] == len([f for f in frames[last_reference:] if not f.camera_ok.all()]) > 0
+
+
+def test_a_camera_dead_from_the_start_is_left_out_of_the_reference_as_in_the_fusion_node(tmp_path, write_bag, sensor,
+                                                                                       sim_frames, predictor, capsys,
+                                                                                       model_dir):
+    """cam1 never gives an image: after REFERENCE_PATIENCE_BUNDLES bundles the reference is taken without it (as the
+    fusion node does, through the same LiveEstimation), and every later estimate is degraded."""
+    cycles = -(-(REFERENCE_PATIENCE_BUNDLES + 10) // len(sim_frames))
+    frames = [dataclasses.replace(f, index=f.index + k * len(sim_frames), time_s=f.time_s + k * len(sim_frames) / 40,
+                                  camera_ok=np.array([c != "cam1" for c in sensor.camera_ids]))
+              for k in range(cycles) for f in sim_frames]
+    write_bag(tmp_path / "bag", sensor, frames, images=False, bundles=True)
+    summary = evaluate_bag(tmp_path / "bag", sensor, predictor).summary()
+    assert summary["cameras_without_reference"] == ["cam1"] and summary["missing_camera_ids"] == ["cam1"]
+    assert summary["estimates"] == summary["degraded_estimates"] == len(frames) - REFERENCE_PATIENCE_BUNDLES
+    assert main(["eval", str(tmp_path / "bag"), "--model", str(model_dir), "--backend", "torch"]) == 0
+    assert "the reference frames were taken without cam1" in capsys.readouterr().out
 
 
 def test_ground_truth_of_an_older_message_definition_is_left_out_and_counted(tmp_path, write_bag, sensor, sim_frames,

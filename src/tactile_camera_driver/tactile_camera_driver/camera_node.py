@@ -1,16 +1,25 @@
 """ROS node: one real camera (or a video file) of the sensor, through OpenCV.
 
-Reads capture frames from `source` (a device index such as "0", a device path such as "/dev/video2", or a
-video file), crops and downsamples them as the sensor description says, and publishes
-`/tactile/<camera_id>/image` (mono8, sensor-data QoS) stamped with the time the frame was read.
+Reads capture frames from `source` (a device index such as 0, a device path such as "/dev/video2", or a video
+file), crops and downsamples them as the sensor description says, and publishes `/tactile/<camera_id>/image`
+(mono8, sensor-data QoS) stamped with the time the frame was grabbed.
 
 A source that cannot be opened or stops delivering is retried every `reopen_period_s` while the node keeps
 running, so a camera that is unplugged and plugged back in recovers by itself. A video file that ends is
-replayed from the start when `loop` is true. Frames of the wrong size are dropped with an error naming the
-camera and the expected size.
+replayed from the start when `loop` is true; with `loop` false the node says once that the file ended and
+publishes nothing more, but keeps running (as sim_camera_node does at the end of its scene), so that a launch
+file does not take the end of a recording for a failure. Frames of the wrong size are dropped with an error naming
+the camera and the expected size.
+
+Stamps (not tried on camera hardware): a device is opened with a buffer of one frame (CAP_PROP_BUFFERSIZE;
+OpenCV's V4L2 backend keeps 4 by default, so a node that fell behind would get frames up to 4 periods older than
+their stamps; backends without the property ignore it), and a frame is stamped as soon as grab() returns it,
+before it is decoded, not before read() waits for it.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import cv2
 from rclpy.node import Node
@@ -19,37 +28,57 @@ from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
+from tactile_conversions.parameters import DYNAMIC, positive_float
 from tactile_conversions.topics import camera_topic
 from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
 
 
-def open_source(source: str) -> cv2.VideoCapture:
-    """A VideoCapture for a device index ("0"), a device path or a video file."""
-    return cv2.VideoCapture(int(source)) if source.isdigit() else cv2.VideoCapture(source)
+def is_video_file(source: int | str) -> bool:
+    return isinstance(source, str) and Path(source).is_file()
+
+
+def open_source(source: int | str) -> cv2.VideoCapture:
+    """A VideoCapture for a device index, a device path or a video file; a device keeps one frame (module
+    docstring)."""
+    capture = cv2.VideoCapture(source)
+    if capture.isOpened() and not is_video_file(source):
+        capture.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+    return capture
 
 
 class CameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_camera")
+        self.capture: cv2.VideoCapture | None = None  # first: rclpy destroys the node even if __init__ fails
         sensor_config = self.declare_parameter("sensor_config", "").value
         self.camera_id = self.declare_parameter("camera_id", "cam0").value
-        self.source = str(self.declare_parameter("source", "0").value)
+        self.source = self.declare_source()
         self.loop = bool(self.declare_parameter("loop", True).value)
-        self.reopen_period_s = float(self.declare_parameter("reopen_period_s", 1.0).value)
+        self.reopen_period_s = positive_float(self, "reopen_period_s", 1.0)
         sensor = load_sensor(sensor_config or None)
         if self.camera_id not in sensor.camera_ids:
             raise ValueError(f"camera_id {self.camera_id!r} is not in the sensor description "
                              f"({list(sensor.camera_ids)})")
         self.camera = sensor.cameras[sensor.camera_ids.index(self.camera_id)]
-        rate_hz = float(self.declare_parameter("rate_hz", sensor.frame_rate_hz).value)
-        if rate_hz <= 0 or self.reopen_period_s <= 0:
-            raise ValueError(f"rate_hz and reopen_period_s must be > 0, got {rate_hz}, {self.reopen_period_s}")
+        rate_hz = positive_float(self, "rate_hz", sensor.frame_rate_hz)
         self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
-        self.capture: cv2.VideoCapture | None = None
         self.next_open_s = 0.0
         self.frames_published = 0
-        self.create_timer(1.0 / rate_hz, self.grab)
+        self.timer = self.create_timer(1.0 / rate_hz, self.grab)
+
+    def declare_source(self) -> int | str:
+        """The `source` parameter as OpenCV takes it: a device index (an integer >= 0, or a string of digits:
+        `-p source:=2` gives the one, camera_sources.yaml's `cam0: 2` the other) or a path (a device or a video
+        file)."""
+        value = self.declare_parameter("source", "0", DYNAMIC).value
+        if isinstance(value, str) and value.isdigit():
+            return int(value)
+        device_index = isinstance(value, int) and not isinstance(value, bool) and value >= 0
+        if device_index or (isinstance(value, str) and value):
+            return value
+        raise ValueError(f"{self.get_name()}: parameter source must be a device index (an integer >= 0), a device "
+                         f"path or a video file, got {value!r}")
 
     def destroy_node(self) -> None:
         if self.capture is not None:
@@ -77,16 +106,11 @@ class CameraNode(Node):
     def grab(self) -> None:
         if not self.ensure_open():
             return
-        stamp = self.get_clock().now().to_msg()
-        ok, frame = self.capture.read()
+        grabbed = self.capture.grab()
+        stamp = self.get_clock().now().to_msg()  # the frame exists now; decoding it (retrieve) takes a while
+        ok, frame = self.capture.retrieve() if grabbed else (False, None)
         if not ok:
-            if self.loop and self.capture.get(cv2.CAP_PROP_FRAME_COUNT) > 0:
-                self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0)  # a video file ended: play it again
-                return
-            self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening")
-            self.capture.release()
-            self.capture = None
-            self.next_open_s = self.now_s() + self.reopen_period_s
+            self.on_no_frame()
             return
         try:
             image = crop_and_downsample(frame, self.camera)
@@ -95,6 +119,22 @@ class CameraNode(Node):
             return
         self.publisher.publish(mono8_to_msg(image, stamp, f"{self.camera_id}_optical"))
         self.frames_published += 1
+
+    def on_no_frame(self) -> None:
+        """A video file that ended is played again (`loop`) or ends the reading; any other source is reopened."""
+        if is_video_file(self.source) and not self.loop:
+            self.get_logger().info(f"{self.camera_id}: video file {self.source!r} ended ({self.frames_published} "
+                                   "frames published; loop false): publishing nothing more")
+            self.timer.cancel()
+            self.capture.release()
+            self.capture = None
+            return
+        if is_video_file(self.source) and self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0):
+            return  # played again from the start
+        self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening")
+        self.capture.release()
+        self.capture = None
+        self.next_open_s = self.now_s() + self.reopen_period_s
 
 
 def main(args: list[str] | None = None) -> None:

@@ -1,10 +1,12 @@
 """ROS node: the simulated sensor's cameras, publishing like real ones.
 
 Plays a simulator scene (default `demo`, looped) at the sensor's frame rate and publishes each camera's
-128 x 128 mono8 image on `/tactile/<camera_id>/image` with sensor-data QoS, stamped with the capture time
-(plus a per-camera offset of up to `stamp_jitter_s`, as free-running cameras have). A camera that the scene
-drops or freezes publishes nothing for that frame, exactly like a broken camera. The scene's ground truth goes
-out on `/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistribution) for live evaluation.
+128 x 128 mono8 image on `/tactile/<camera_id>/image` with sensor-data QoS, stamped with the capture time plus
+a random delay drawn afresh for each image, uniform in [0, `stamp_jitter_s`] (the spread of stamps of cameras that
+are not triggered together; 0 stamps every image with the capture time). A camera that the scene drops or freezes
+publishes nothing for that frame, exactly like a broken camera. With `loop` false the node says once that the
+scene ended and publishes nothing more (it keeps running). The scene's ground truth goes out on
+`/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistribution) for live evaluation.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from sensor_msgs.msg import Image
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
+from tactile_conversions.parameters import positive_float
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import FORCE_COMPONENTS, load_sensor
@@ -28,28 +31,29 @@ class SimCameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_sim_cameras")
         sensor_config = self.declare_parameter("sensor_config", "").value
-        scene_name = self.declare_parameter("scene", "demo").value
+        self.scene_name = self.declare_parameter("scene", "demo").value
         self.loop = bool(self.declare_parameter("loop", True).value)
-        self.stamp_jitter_s = float(self.declare_parameter("stamp_jitter_s", 0.002).value)
+        self.stamp_jitter_s = positive_float(self, "stamp_jitter_s", 0.002, allow_zero=True)
         self.sensor = load_sensor(sensor_config or None)
-        rate_hz = float(self.declare_parameter("rate_hz", self.sensor.frame_rate_hz).value)
-        if rate_hz <= 0 or self.stamp_jitter_s < 0:
-            raise ValueError(f"rate_hz must be > 0 and stamp_jitter_s >= 0, got {rate_hz}, {self.stamp_jitter_s}")
+        rate_hz = positive_float(self, "rate_hz", self.sensor.frame_rate_hz)
         self.simulator = Simulator(self.sensor)
-        self.scene = load_scene(scene_name, self.sensor)
+        self.scene = load_scene(self.scene_name, self.sensor)
         self.frames = self.simulator.stream(self.scene)
         self.rng = np.random.default_rng(0)
         self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)
                            for c in self.sensor.camera_ids}
         self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
-        self.create_timer(1.0 / rate_hz, self.publish_frame)
-        self.get_logger().info(f"simulating scene {scene_name!r} ({len(self.scene)} frames) at {rate_hz:.1f} Hz "
+        self.timer = self.create_timer(1.0 / rate_hz, self.publish_frame)
+        self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at {rate_hz:.1f} Hz "
                                f"for cameras {list(self.sensor.camera_ids)}")
 
     def publish_frame(self) -> None:
         frame = next(self.frames, None)
         if frame is None:
             if not self.loop:
+                self.get_logger().info(f"scene {self.scene_name!r} ended ({len(self.scene)} frames; loop false): "
+                                       "publishing nothing more")
+                self.timer.cancel()
                 return
             self.frames = self.simulator.stream(self.scene)
             frame = next(self.frames)

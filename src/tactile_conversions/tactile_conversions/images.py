@@ -61,14 +61,23 @@ def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor
     """One bundle's image messages as a model frame, in the sensor's camera order.
 
     Returns the (C, H, W) uint8 frame (black where a camera gave nothing usable), camera_ok (C,) and, for each
-    image that could not be used, (reason, detail): an unknown camera, an unreadable message, a wrong size.
+    image that could not be used, (reason, detail): an unknown camera, a camera's second image, an unreadable
+    message, a wrong size. A bundle with another number of camera ids than images (a malformed message: which image
+    is whose cannot be told) gives no usable image and that one problem.
     """
     frame = np.zeros((len(sensor_camera_ids), *image_shape), np.uint8)
     camera_ok = np.zeros(len(sensor_camera_ids), bool)
+    if len(camera_ids) != len(images):
+        return frame, camera_ok, [("malformed bundle", f"{len(camera_ids)} camera ids {list(camera_ids)} for "
+                                   f"{len(images)} image(s); the bundle is skipped")]
     problems = []
     for camera_id, msg in zip(camera_ids, images, strict=True):
         if camera_id not in sensor_camera_ids:
             problems.append((f"image of unknown camera {camera_id!r}", f"expected one of {list(sensor_camera_ids)}"))
+            continue
+        i = list(sensor_camera_ids).index(camera_id)
+        if camera_ok[i]:
+            problems.append((f"second image of {camera_id}", "the first one is used"))
             continue
         try:
             image = to_mono8(msg_to_array(msg, camera_id), camera_id)
@@ -79,6 +88,5 @@ def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor
             problems.append((f"{camera_id} image of {image.shape[1]} x {image.shape[0]} pixels",
                              f"the model needs {image_shape[1]} x {image_shape[0]}"))
             continue
-        i = list(sensor_camera_ids).index(camera_id)
         frame[i], camera_ok[i] = image, True
     return frame, camera_ok, problems

@@ -56,3 +56,19 @@ def test_bundle_images_become_a_frame_in_the_sensor_order():
     assert ok.tolist() == [False, False, True]
     assert [reason for reason, _ in problems] == ["cam0 image of 2 x 2 pixels", "unreadable image of cam1",
                                                   "image of unknown camera 'cam9'"]
+
+
+def test_a_bundle_with_more_camera_ids_than_images_gives_no_usable_image():
+    """Which image is whose cannot be told: the whole bundle is a problem, not an exception (the node goes on)."""
+    image = mono8_to_msg(np.full((4, 4), 7, np.uint8), Time(), "cam0_optical")
+    frame, ok, problems = frame_from_images(["cam0", "cam1"], [image], ("cam0", "cam1"), (4, 4))
+    assert not ok.any() and not frame.any()
+    assert problems == [("malformed bundle", "2 camera ids ['cam0', 'cam1'] for 1 image(s); the bundle is skipped")]
+
+
+def test_a_second_image_of_a_camera_is_a_problem_and_the_first_is_used():
+    first = mono8_to_msg(np.full((4, 4), 7, np.uint8), Time(), "cam0_optical")
+    second = mono8_to_msg(np.full((4, 4), 9, np.uint8), Time(), "cam0_optical")
+    frame, ok, problems = frame_from_images(["cam0", "cam0"], [first, second], ("cam0",), (4, 4))
+    assert ok.tolist() == [True] and np.all(frame[0] == 7)
+    assert [reason for reason, _ in problems] == ["second image of cam0"]

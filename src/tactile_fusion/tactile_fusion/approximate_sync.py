@@ -12,14 +12,24 @@ Knobs, as in message_filters:
 - `min_period_s` (inter-message lower bound, per stream): the next message of a stream cannot be stamped earlier
   than the last one plus this period, which lets a bundle be emitted without waiting for that message.
 
-Streams must be stamped in increasing order; a message stamped at or before its predecessor is dropped.
+Streams must be stamped in increasing order; a message stamped at or before its predecessor is dropped
+(`out_of_order`). One stamped more than `restart_jump_s` before its predecessor is not a late message but a stream
+that started over: a replayed bag that loops, a clock set back, a camera that restarted. Dropping it, and every
+later one until the stamps pass the old ones again, would stall the bundles for as long as the stamps went back
+(for ever with a looping bag); instead the synchroniser resets (every queue emptied, counted as `reset`, and every
+stream's order forgotten), calls `on_restart`, and goes on from the new stamps. A reset costs the messages queued,
+about one per stream when the streams keep pace, so `camera_sync_settings` sets `restart_jump_s` to two frame
+periods: a step back that large would cost more frames as out of order. A message of another stream stamped before
+the jump and arriving after it causes one more reset.
 Time is whatever unit the caller uses consistently (seconds in the nodes).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Generic, TypeVar
 
 Item = TypeVar("Item")
@@ -27,9 +37,11 @@ Item = TypeVar("Item")
 
 def camera_sync_settings(frame_rate_hz: float) -> dict[str, float | int]:
     """The default settings for cameras at `frame_rate_hz`: half a frame period for the spread and the period
-    bound (a tighter spread would split jittered frames, a looser one could pair neighbouring frames)."""
+    bound (a tighter spread would split jittered frames, a looser one could pair neighbouring frames), two frame
+    periods for a step back that restarts the synchronisation (module docstring)."""
     half_period_s = 0.5 / frame_rate_hz
-    return {"queue_size": 10, "max_spread_s": half_period_s, "min_period_s": half_period_s}
+    return {"queue_size": 10, "max_spread_s": half_period_s, "min_period_s": half_period_s,
+            "restart_jump_s": 2.0 / frame_rate_hz}
 
 
 @dataclass
@@ -47,43 +59,84 @@ class Bundle(Generic[Item]):
 
 @dataclass
 class SyncCounters:
-    """What the synchroniser had to drop, by reason (exposed as node diagnostics)."""
+    """What the synchroniser had to drop, by reason and by stream (bundle_node logs them while they grow).
+
+    - out_of_order: stamped at or before the stream's previous message (within `restart_jump_s` of it);
+    - queue_overflow: the oldest of a full queue;
+    - too_wide: the oldest head, when the tightest bundle holding the pivot was wider than `max_spread_s`;
+    - superseded: older than a stream's message in the bundle emitted, so it cannot be in a later bundle;
+    - reset: still queued when the synchroniser reset (a stream's stamps jumped back, or the caller called reset).
+    """
 
     out_of_order: int = 0
     queue_overflow: int = 0
     too_wide: int = 0
     superseded: int = 0
+    reset: int = 0
     per_stream: dict[str, int] = field(default_factory=dict)
+
+    def by_reason(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "per_stream"}
 
     @property
     def total(self) -> int:
-        return self.out_of_order + self.queue_overflow + self.too_wide + self.superseded
+        return sum(self.by_reason().values())
+
+    def snapshot(self) -> SyncCounters:
+        return replace(self, per_stream=dict(self.per_stream))
+
+    def since(self, earlier: SyncCounters) -> SyncCounters:
+        """The drops counted after `earlier`, a snapshot of these counters."""
+        counts = {reason: n - getattr(earlier, reason) for reason, n in self.by_reason().items()}
+        return SyncCounters(**counts, per_stream={s: n - earlier.per_stream.get(s, 0)
+                                                  for s, n in self.per_stream.items()})
+
+    def __str__(self) -> str:
+        """The non-zero counts, e.g. "out_of_order 12, too_wide 3; cam0 5, cam1 10"."""
+        reasons = ", ".join(f"{reason} {n}" for reason, n in self.by_reason().items() if n)
+        streams = ", ".join(f"{s} {n}" for s, n in self.per_stream.items() if n)
+        return f"{reasons or 'none'}; {streams or 'none'}"
 
 
 class ApproximateTimeSync(Generic[Item]):
     """Feed messages with `add`; it returns the bundles they complete, oldest first."""
 
     def __init__(self, stream_ids: list[str] | tuple[str, ...], queue_size: int = 10, max_spread_s: float = 0.02,
-                 min_period_s: float = 0.0):
+                 min_period_s: float = 0.0, restart_jump_s: float = 1.0, dropped: SyncCounters | None = None,
+                 on_restart: Callable[[str, float, float], None] | None = None):
+        """`dropped`: the counters to count into (new ones if None), so that a caller that replaces the
+        synchroniser keeps one count. `on_restart(stream_id, previous_stamp, stamp)` is called when a stream's stamps
+        jump back by more than `restart_jump_s` (module docstring; camera_sync_settings gives two frame periods)."""
         if len(stream_ids) < 1 or len(set(stream_ids)) != len(stream_ids):
             raise ValueError(f"stream ids must be unique and at least one, got {list(stream_ids)}")
         if queue_size < 1:
             raise ValueError(f"queue_size must be >= 1, got {queue_size}")
-        if not max_spread_s > 0 or min_period_s < 0:
-            raise ValueError(f"max_spread_s must be > 0 and min_period_s >= 0; got {max_spread_s}, {min_period_s}")
+        for name, value in (("max_spread_s", max_spread_s), ("restart_jump_s", restart_jump_s)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+        if not (math.isfinite(min_period_s) and min_period_s >= 0):
+            raise ValueError(f"min_period_s must be a finite number >= 0, got {min_period_s}")
         self.stream_ids = tuple(stream_ids)
         self.queue_size = queue_size
         self.max_spread_s = max_spread_s
         self.min_period_s = min_period_s
+        self.restart_jump_s = restart_jump_s
+        self.on_restart = on_restart
         self._queues: dict[str, deque[tuple[float, Any]]] = {s: deque() for s in self.stream_ids}
         self._last_stamp: dict[str, float] = {}
-        self.dropped = SyncCounters(per_stream={s: 0 for s in self.stream_ids})
+        self.dropped = dropped if dropped is not None else SyncCounters()
+        for s in self.stream_ids:
+            self.dropped.per_stream.setdefault(s, 0)
 
     def add(self, stream_id: str, stamp: float, item: Item) -> list[Bundle[Item]]:
         if stream_id not in self._queues:
             raise KeyError(f"unknown stream {stream_id!r}; expected one of {list(self.stream_ids)}")
         last = self._last_stamp.get(stream_id)
-        if last is not None and stamp <= last:
+        if last is not None and stamp < last - self.restart_jump_s:
+            self.reset()
+            if self.on_restart is not None:
+                self.on_restart(stream_id, last, stamp)
+        elif last is not None and stamp <= last:
             self._drop(stream_id, "out_of_order")
             return []
         self._last_stamp[stream_id] = stamp
@@ -96,6 +149,14 @@ class ApproximateTimeSync(Generic[Item]):
         while (bundle := self._next_bundle()) is not None:
             bundles.append(bundle)
         return bundles
+
+    def reset(self) -> None:
+        """Start over: drop every queued message (counted as `reset`) and forget every stream's last stamp."""
+        for s, queue in self._queues.items():
+            if queue:
+                self._drop(s, "reset", len(queue))
+                queue.clear()
+        self._last_stamp.clear()
 
     def _drop(self, stream_id: str, reason: str, count: int = 1) -> None:
         setattr(self.dropped, reason, getattr(self.dropped, reason) + count)

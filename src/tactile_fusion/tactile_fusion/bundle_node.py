@@ -5,11 +5,19 @@ Subscribes `/tactile/<camera_id>/image` for every camera of the sensor descripti
 lost some. A camera that falls silent for `camera_timeout_s` is left out of the bundles (they
 then list fewer cameras, and the fusion node reports it as missing) until it sends images again, so one broken
 camera degrades the estimate instead of stopping it.
+
+Nothing is dropped silently: what the synchroniser drops (approximate_sync.SyncCounters: late, overflowing, too
+wide, superseded images, and those it held when it reset) is logged with its reasons and cameras at once, then
+every `DROP_LOG_PERIOD_S` at most while it goes on, and when the node stops. A camera whose stamps jump back by
+more than two frame periods (a bag replay that loops, a clock set back, a restarted camera) makes the
+synchroniser start over from the new stamps, with a warning; without that, every later image would be dropped as
+out of order until the stamps passed the old ones again.
 """
 
 from __future__ import annotations
 
 import statistics
+import time
 
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -17,37 +25,50 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
+from tactile_conversions.parameters import positive_float
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_description import load_sensor
-from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, camera_sync_settings
+from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
 from tactile_msgs.msg import ImageBundle
+
+#: While the synchroniser drops images, what it dropped is logged at once and then at most this often (seconds).
+DROP_LOG_PERIOD_S = 10.0
 
 
 class BundleNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_bundle")
+        self.dropped = SyncCounters()  # by every synchroniser of the node; first: destroy_node reports it
+        self.reported = self.dropped.snapshot()
+        self.last_report_s = -float("inf")
         sensor_config = self.declare_parameter("sensor_config", "").value
         self.sensor = load_sensor(sensor_config or None)
         defaults = camera_sync_settings(self.sensor.frame_rate_hz)
-        self.max_spread_s = float(self.declare_parameter("max_spread_s", defaults["max_spread_s"]).value)
+        self.max_spread_s = positive_float(self, "max_spread_s", defaults["max_spread_s"])
         self.queue_size = int(self.declare_parameter("queue_size", defaults["queue_size"]).value)
-        self.min_period_s = float(self.declare_parameter("min_period_s", defaults["min_period_s"]).value)
-        self.camera_timeout_s = float(self.declare_parameter("camera_timeout_s", 10 / self.sensor.frame_rate_hz).value)
-        if self.max_spread_s <= 0 or self.queue_size < 1 or self.min_period_s < 0 or self.camera_timeout_s <= 0:
-            raise ValueError("tactile_bundle: max_spread_s and camera_timeout_s must be > 0, queue_size >= 1, "
-                             "min_period_s >= 0")
+        self.min_period_s = positive_float(self, "min_period_s", defaults["min_period_s"], allow_zero=True)
+        self.camera_timeout_s = positive_float(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
+        self.restart_jump_s = defaults["restart_jump_s"]
+        if self.queue_size < 1:
+            raise ValueError(f"{self.get_name()}: parameter queue_size must be >= 1, got {self.queue_size}")
         self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
         self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
         self.live_cameras: tuple[str, ...] = ()
+        self.lost_cameras: set[str] = set()
         self.sync: ApproximateTimeSync[Image] | None = None
         self.sequence = 0
         for camera_id in self.sensor.camera_ids:
             self.create_subscription(Image, camera_topic(camera_id),
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
         self.create_timer(self.camera_timeout_s / 2, self.check_cameras)
+        self.create_timer(1.0, self.report_drops)
         self.get_logger().info(f"bundling cameras {list(self.sensor.camera_ids)} "
                                f"(max spread {self.max_spread_s * 1e3:.1f} ms)")
+
+    def destroy_node(self) -> None:
+        self.log_drops()  # the last ones, however recent the previous report
+        super().destroy_node()
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -73,17 +94,44 @@ class BundleNode(Node):
         live = tuple(c for c, t in self.last_arrival_s.items() if now - t < self.camera_timeout_s)
         if live == self.live_cameras:
             return
+        self.log_camera_changes(live)
+        if self.sync is not None:
+            self.sync.reset()  # counts the images it held as dropped
+        self.live_cameras = live
+        self.sync = ApproximateTimeSync(live, self.queue_size, self.max_spread_s, self.min_period_s,
+                                        self.restart_jump_s, self.dropped, self.on_restart) if live else None
+
+    def log_camera_changes(self, live: tuple[str, ...]) -> None:
+        """Warn about cameras that fell silent; say when one of those sends again (not at start-up)."""
         lost = sorted(set(self.live_cameras) - set(live))
         if lost:
             self.get_logger().warning(f"no images from {lost} for {self.camera_timeout_s:.2f} s: bundling "
                                       f"{list(live)} only")
-        back = sorted(set(live) - set(self.live_cameras))
+        back = sorted(self.lost_cameras & set(live))
         if back:
-            self.get_logger().info(f"cameras {back} are back")
-        if self.sync is not None and self.sync.dropped.total:
-            self.get_logger().info(f"synchroniser dropped {self.sync.dropped.total} image(s): {self.sync.dropped}")
-        self.live_cameras = live
-        self.sync = ApproximateTimeSync(live, self.queue_size, self.max_spread_s, self.min_period_s) if live else None
+            self.get_logger().info(f"cameras {back} are back: bundling {list(live)}")
+        self.lost_cameras = (self.lost_cameras | set(lost)) - set(live)
+
+    def on_restart(self, camera_id: str, previous_stamp_s: float, stamp_s: float) -> None:
+        self.get_logger().warning(
+            f"{camera_id}'s stamps went back {previous_stamp_s - stamp_s:.3f} s (from {previous_stamp_s:.3f} s to "
+            f"{stamp_s:.3f} s): a replayed bag started over, the clock was set back or the camera restarted; "
+            "synchronising from the new stamps", throttle_duration_sec=DROP_LOG_PERIOD_S)
+
+    def report_drops(self) -> None:
+        """Every second: drops are logged at once, then at most every DROP_LOG_PERIOD_S while they go on."""
+        if time.monotonic() - self.last_report_s >= DROP_LOG_PERIOD_S:
+            self.log_drops()
+
+    def log_drops(self) -> None:
+        """Log what the synchroniser dropped since the last time, if anything (reasons: SyncCounters)."""
+        if self.dropped.total == self.reported.total:
+            return
+        new = self.dropped.since(self.reported)
+        self.get_logger().warning(f"the synchroniser dropped {new.total} image(s) ({new}), {self.dropped.total} "
+                                  "since start")
+        self.reported = self.dropped.snapshot()
+        self.last_report_s = time.monotonic()
 
     def to_msg(self, bundle: Bundle[Image], sequence: int) -> ImageBundle:
         return ImageBundle(header=Header(stamp=seconds_to_time(statistics.median(bundle.stamps)),

@@ -6,7 +6,11 @@ all stamped with the capture time of the bundle.
 
 Reference frames: the model sees each camera's difference to a frame taken at rest. At start-up (and on the
 `~/capture_reference` service, std_srvs/Trigger) the node averages the next `reference_bundles` complete
-bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them.
+bundles, assuming nothing touches the surface meanwhile; it publishes nothing until it has them. While a camera
+holds the capture up it says which (every 5 s); after `live_estimation.REFERENCE_PATIENCE_BUNDLES` bundles without
+enough complete ones it takes the reference without that camera, whose images are then not used until the next
+capture (live_estimation.ReferenceFrames). The frames go through `live_estimation.LiveEstimation`, the loop that
+`tactile-bag eval` runs too.
 
 RViz markers (one line per loaded bin, `tactile_conversions.forces.force_markers`) cost 2-5 ms to build and
 serialise with every bin loaded, more than an inference (about 1 ms). A display needs no more than
@@ -18,8 +22,10 @@ Lost bundles: the bundle node numbers its bundles; a jump in the numbers is logg
 10 s at most, with the count since start), so that a full subscription queue does not drop bundles silently.
 
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
-(which shows the model its reference frame there: "no contact"), and the estimate lists it in
-`missing_camera_ids`.
+(which shows the model that camera at rest, tactile_fusion.camera_out: "no contact"), and the estimate lists it in
+`missing_camera_ids`. Every problem of a bundle is logged in one line (every 5 s at most, with the count of such
+bundles since start), so that each broken camera is named; a malformed bundle (not one image per camera id) is
+skipped.
 """
 
 from __future__ import annotations
@@ -37,14 +43,14 @@ from tactile_conversions.node_main import run_node
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components, load_sensor
-from tactile_fusion.artifacts import check_model_fits, threshold_text
+from tactile_fusion.artifacts import threshold_text
 from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import (
     REFERENCE_BUNDLES,
     BundleSequence,
+    FrameResult,
+    LiveEstimation,
     ProcessingLoad,
-    ReferenceFrames,
-    ReferenceMatch,
 )
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
@@ -70,10 +76,9 @@ class FusionNode(Node):
         self.last_markers_s = -float("inf")
         self.sensor = load_sensor(sensor_config or None)
         self.predictor = load_predictor(model_dir or None, backend, precision, threads)
-        check_model_fits(self.predictor, self.sensor)
+        self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
-        self.reference = ReferenceFrames(self.sensor.n_cameras, self.image_shape, reference_bundles)
-        self.reference_match: ReferenceMatch | None = None  # once the reference is taken
+        self.bundles_with_problems = 0
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
         self.sequence = BundleSequence()
         self.forces_pub = self.create_publisher(ForceDistribution, ESTIMATE_TOPIC, 10)
@@ -92,10 +97,9 @@ class FusionNode(Node):
             self.get_logger().info(f"Fz per bin below {threshold} is published as 0 (the model's Fz threshold)")
 
     def on_capture_reference(self, _request, response):
-        self.reference.reset()
-        self.reference_match = None
+        self.live.reset()
         response.success = True
-        response.message = f"capturing the reference from the next {self.reference.count} complete bundles"
+        response.message = f"capturing the reference from the next {self.live.reference.count} complete bundles"
         return response
 
     def on_bundle(self, bundle: ImageBundle) -> None:
@@ -126,30 +130,36 @@ class FusionNode(Node):
         """Capture the reference or publish the estimate of one bundle."""
         images, camera_ok, problems = frame_from_images(bundle.camera_ids, bundle.images, self.sensor.camera_ids,
                                                         self.image_shape)
-        for reason, detail in problems:
-            self.get_logger().error(f"{reason}: {detail}", throttle_duration_sec=5.0)
-        if self.reference.images is None:
-            if self.reference.add(images, camera_ok):
-                self.get_logger().info("reference frames captured: publishing forces")
-                if self.reference.rest_levels is None:
-                    self.get_logger().info("a reference of one bundle: whether the cameras still match it is not "
-                                           "checked (reference_bundles of 2 or more for that)")
-                else:
-                    self.reference_match = ReferenceMatch(self.reference.rest_levels)
-            return
-        self.check_reference_match(images, camera_ok)
-        if not camera_ok.any():
-            return
+        if problems:
+            self.bundles_with_problems += 1
+            self.get_logger().error(
+                f"bundle {bundle.sequence}: " + "; ".join(f"{reason} ({detail})" for reason, detail in problems)
+                + f" ({self.bundles_with_problems} bundle(s) with unusable images since start)",
+                throttle_duration_sec=5.0)
         try:
-            forces = self.predictor.predict(images, self.reference.images, camera_ok=camera_ok)
+            result = self.live.add(images, camera_ok)
         except (InputError, FloatingPointError) as exc:
             self.get_logger().error(f"no estimate for this bundle: {exc}", throttle_duration_sec=5.0)
             return
-        present = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if ok]
-        missing = [c for c, ok in zip(self.sensor.camera_ids, camera_ok, strict=True) if not ok]
+        if result.for_reference:
+            self.report_reference(result)
+            return
+        self.report_reference_match(result.match_changed)
+        if result.unreferenced.any():
+            self.get_logger().warning(
+                f"images of {self.camera_names(result.unreferenced)} arrive again, but the reference frames were taken "
+                "without them: they are not used until the reference is taken again, with nothing on the surface: "
+                f"{self.capture_command()}", throttle_duration_sec=10.0)
+        if result.forces is not None:
+            self.publish(bundle, result)
+
+    def publish(self, bundle: ImageBundle, result: FrameResult) -> None:
+        """The estimate of one bundle on the force, wrench and (at their rate) marker topics."""
+        present = [c for c, ok in zip(self.sensor.camera_ids, result.camera_ok, strict=True) if ok]
+        missing = [c for c, ok in zip(self.sensor.camera_ids, result.camera_ok, strict=True) if not ok]
         try:
-            distribution = force_distribution_msg(forces, self.sensor.grid, bundle.header.stamp, self.sensor.frame_id,
-                                                  present, missing, self.predictor.components)
+            distribution = force_distribution_msg(result.forces, self.sensor.grid, bundle.header.stamp,
+                                                  self.sensor.frame_id, present, missing, self.predictor.components)
         except ValueError as exc:  # a model whose graph outputs forces its model.json says it does not estimate
             self.get_logger().error(f"no estimate published: {exc}", throttle_duration_sec=5.0)
             return
@@ -158,27 +168,55 @@ class FusionNode(Node):
         now_s = time.monotonic()
         if self.publish_markers and now_s - self.last_markers_s >= self.markers_period_s:
             self.last_markers_s = now_s
-            self.markers_pub.publish(force_markers(forces, self.sensor.grid, bundle.header.stamp,
+            self.markers_pub.publish(force_markers(result.forces, self.sensor.grid, bundle.header.stamp,
                                                    self.sensor.frame_id,
                                                    lifetime_s=max(1.0, 2.0 * self.markers_period_s)))
 
-    def check_reference_match(self, images, camera_ok) -> None:
+    def report_reference(self, result: FrameResult) -> None:
+        """Say that the reference is taken, and without which cameras, or which cameras hold it up."""
+        reference = self.live.reference
+        if not result.reference_taken:
+            if not result.camera_ok.all():
+                self.get_logger().warning(
+                    f"capturing the reference: no usable image of {self.camera_names(~result.camera_ok)} "
+                    f"({reference.frames_taken} of {reference.count} complete bundles so far); after "
+                    f"{reference.patience} bundles it is taken without the cameras missing from the last "
+                    f"{reference.count}, which are then not used until it is taken again",
+                    throttle_duration_sec=5.0)
+            return
+        if reference.cameras.all():
+            self.get_logger().info("reference frames captured: publishing forces")
+        else:
+            self.get_logger().warning(
+                f"reference frames captured without {self.camera_names(~reference.cameras)} ({reference.patience} "
+                f"bundles brought fewer than {reference.count} complete ones): publishing forces without them (listed "
+                "as missing); once they give images again, take the reference again, with nothing on the surface: "
+                f"{self.capture_command()}")
+        if reference.rest_levels is None:
+            self.get_logger().info("a reference of one bundle: whether the cameras still match it is not "
+                                   "checked (reference_bundles of 2 or more for that)")
+
+    def report_reference_match(self, changed) -> None:
         """Say when a camera's images stop or start again to match its reference frame (live_estimation.
         ReferenceMatch)."""
-        if self.reference_match is None:
-            return
-        for camera in self.reference_match.add(images, self.reference.images, camera_ok):
+        match = self.live.match
+        for camera in changed:
             name = self.sensor.camera_ids[camera]
-            level = self.reference_match.level(camera)
-            if self.reference_match.off[camera]:
+            level = match.level(camera)
+            if match.off[camera]:
                 self.get_logger().warning(
                     f"{name}'s images no longer match its reference frame ({level:.1f} grey levels of difference at "
-                    f"the 75th percentile, {self.reference.rest_levels[camera]:.1f} when it was taken): the camera "
-                    "moved or was refocused, or the gel aged, and the estimates err several times more; with nothing "
-                    f"on the surface, take the reference again: ros2 service call "
-                    f"{self.get_fully_qualified_name()}/capture_reference std_srvs/srv/Trigger")
+                    f"the 75th percentile, {self.live.reference.rest_levels[camera]:.1f} when it was taken): the "
+                    "camera moved or was refocused, or the gel aged, and the estimates err several times more; with "
+                    f"nothing on the surface, take the reference again: {self.capture_command()}")
             else:
                 self.get_logger().info(f"{name}'s images match its reference frame again ({level:.1f} grey levels)")
+
+    def camera_names(self, mask) -> str:
+        return ", ".join(c for c, m in zip(self.sensor.camera_ids, mask, strict=True) if m)
+
+    def capture_command(self) -> str:
+        return f"ros2 service call {self.get_fully_qualified_name()}/capture_reference std_srvs/srv/Trigger"
 
 
 def main(args: list[str] | None = None) -> None:

@@ -1,22 +1,33 @@
-"""Live estimation without ROS: the reference frames (shared by the fusion node and offline bag evaluation), the
-check that they still match the cameras, the check that the fusion node keeps up with its cameras, and the count of
-bundles lost on the way to it.
+"""Live estimation without ROS: the loop that turns frames into estimates (`LiveEstimation`, shared by the fusion
+node and offline bag evaluation so that the two estimate alike), the reference frames, the check that they still
+match the cameras, the check that the fusion node keeps up with its cameras, and the count of bundles lost on the way
+to it.
 
 The model needs each camera's frame at rest; the live graph takes the pixel-wise mean of the first `count`
 complete bundles (nothing may touch the surface meanwhile) and can be asked to take it again.
+
+torch (and the model code) is imported where it is used: `tactile-bag record` and `play` import this module (through
+tactile_bag.evaluate) without needing the model stack, which takes a second to import.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-from tactile_fusion.model import difference_images
+if TYPE_CHECKING:
+    from tactile_description import SensorDescription
+    from tactile_fusion.inference import ForcePredictor
 
 #: Complete bundles averaged into the reference frames (the fusion node's default `reference_bundles`).
 REFERENCE_BUNDLES = 10
+#: Bundles the reference capture waits for its complete ones before it does without the cameras missing from them
+#: (ReferenceFrames): 2 s at the sensor's 40 Hz.
+REFERENCE_PATIENCE_BUNDLES = 80
 
 
 def mismatch_levels(images: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -28,6 +39,10 @@ def mismatch_levels(images: np.ndarray, reference: np.ndarray) -> np.ndarray:
     1.0 at rest with sensor noise of sigma 1, 2.0 with sigma 1.5). What moves or changes every particle raises it all
     over (the effects scene, sigma 1.5: defocus blur 9.6, a camera shifted by 1.8 px and turned by 2 degrees 9.7, the
     gel's creep after half a pixel 3.1)."""
+    import torch
+
+    from tactile_fusion.model import difference_images
+
     difference = difference_images(torch.from_numpy(images[None]), torch.from_numpy(reference))[0]
     magnitude = difference.abs().reshape(len(images), -1)
     rank = -(-3 * magnitude.shape[1] // 4)  # the smallest value that 75 % of the pixels do not exceed
@@ -36,41 +51,133 @@ def mismatch_levels(images: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 class ReferenceFrames:
     """The pixel-wise mean of the first `count` complete frames: each camera's image at rest, and how far the frames
-    it was taken from lie from it (`rest_levels`; with one frame that cannot be told, and they stay None)."""
+    it was taken from lie from it (`rest_levels`; with one frame that cannot be told, and they stay None).
 
-    def __init__(self, n_cameras: int, image_shape: tuple[int, int], count: int = REFERENCE_BUNDLES):
+    A camera without usable images (dead at start-up, or out when the reference is taken again) would hold the
+    reference up for good, and the fusion node would never publish. So once `patience` frames have come
+    without `count` complete ones, the reference is taken from the last `count` frames over the cameras usable in
+    each of them; `cameras` says which cameras it covers. The others have no reference frame (black): their images
+    cannot be used until the reference is taken again.
+    """
+
+    def __init__(self, n_cameras: int, image_shape: tuple[int, int], count: int = REFERENCE_BUNDLES,
+                 patience: int = REFERENCE_PATIENCE_BUNDLES):
         if count < 1:
             raise ValueError(f"the reference needs at least one frame, got count={count}")
         self.count = count
+        self.patience = max(count, patience)
         self.n_cameras, self.image_shape = n_cameras, image_shape
-        self._frames: list[np.ndarray] = []
-        self.images: np.ndarray | None = None  # (C, H, W) uint8 once complete
-        self.rest_levels: np.ndarray | None = None  # (C,) grey levels once complete (`mismatch_levels`' median)
+        self.frames_seen = 0  # since the capture began
+        self._complete: list[np.ndarray] = []
+        self._recent: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=count)  # (frame, camera_ok)
+        self.images: np.ndarray | None = None  # (C, H, W) uint8 once taken
+        self.cameras: np.ndarray | None = None  # (C,) bool once taken: the cameras that have a reference frame
+        self.rest_levels: np.ndarray | None = None  # (C,) grey levels once taken (`mismatch_levels`' median)
 
     @property
     def frames_taken(self) -> int:
-        return self.count if self.images is not None else len(self._frames)
+        """Complete frames counted so far (`count` once the reference is taken)."""
+        return self.count if self.images is not None else len(self._complete)
 
     def reset(self) -> None:
         """Take the reference again from the next complete frames (e.g. after the gel has aged)."""
-        self._frames = []
-        self.images = self.rest_levels = None
+        self.frames_seen = 0
+        self._complete = []
+        self._recent.clear()
+        self.images = self.cameras = self.rest_levels = None
 
     def add(self, images: np.ndarray, camera_ok: np.ndarray) -> bool:
-        """Count one frame (ignored unless every camera is ok); True when this frame completed the reference."""
-        if self.images is not None or not np.all(camera_ok):
+        """Count one frame; True when this frame completed the reference."""
+        if self.images is not None:
             return False
         if images.shape != (self.n_cameras, *self.image_shape):
             raise ValueError(f"reference frames are {(self.n_cameras, *self.image_shape)} (cameras, height, width), "
                              f"got {images.shape}")
-        self._frames.append(np.array(images, dtype=np.uint8))
-        if len(self._frames) < self.count:
+        frame, ok = np.array(images, dtype=np.uint8), np.array(camera_ok, dtype=bool)
+        self.frames_seen += 1
+        self._recent.append((frame, ok))
+        if ok.all():
+            self._complete.append(frame)
+        if len(self._complete) == self.count:
+            self._take(self._complete, np.ones(self.n_cameras, dtype=bool))
+            return True
+        if self.frames_seen < self.patience:
             return False
-        self.images = np.rint(np.mean(self._frames, axis=0)).astype(np.uint8)
-        if len(self._frames) > 1:
-            self.rest_levels = np.median([mismatch_levels(f, self.images) for f in self._frames], axis=0)
-        self._frames = []
+        alive = np.logical_and.reduce([ok for _, ok in self._recent])  # `patience` >= `count`: the deque is full
+        if not alive.any():
+            return False
+        self._take([frame for frame, _ in self._recent], alive)
         return True
+
+    def _take(self, frames: list[np.ndarray], cameras: np.ndarray) -> None:
+        self.images = np.rint(np.mean(frames, axis=0)).astype(np.uint8)
+        self.images[~cameras] = 0
+        self.cameras = cameras
+        if len(frames) > 1:
+            self.rest_levels = np.median([mismatch_levels(f, self.images) for f in frames], axis=0)
+        self._complete = []
+        self._recent.clear()
+
+
+@dataclass
+class FrameResult:
+    """What `LiveEstimation.add` made of one frame."""
+
+    camera_ok: np.ndarray  # (C,) the cameras whose images were used (while the reference is taken: the frame's own)
+    for_reference: bool = False  # the frame went into the reference (no estimate)
+    reference_taken: bool = False  # ... and completed it
+    forces: np.ndarray | None = None  # (rows, cols, 3) newtons; None for a reference frame or without a usable image
+    unreferenced: np.ndarray | None = None  # (C,) cameras with a usable image but without a reference frame
+    match_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # ReferenceMatch.add's
+
+
+class LiveEstimation:
+    """Frames in the sensor's camera order -> estimates, as the fusion node makes them: the reference is taken from
+    the first frames (ReferenceFrames), then each frame is checked against it (ReferenceMatch) and goes through the
+    predictor, which gets the frame's camera ids (so a sensor description listing the cameras in another order than
+    the model's gives the same estimates) and the cameras to leave out (missing, unreadable, or without a reference
+    frame: they report "no contact").
+
+    Offline bag evaluation (tactile_bag.evaluate) runs the same loop, so that a bag and the live graph agree.
+    """
+
+    def __init__(self, predictor: ForcePredictor, sensor: SensorDescription, reference_bundles: int = REFERENCE_BUNDLES,
+                 patience: int = REFERENCE_PATIENCE_BUNDLES):
+        """Raises ModelFileError (a ValueError) unless the model fits the sensor (artifacts.check_model_fits)."""
+        from tactile_fusion.artifacts import check_model_fits  # imports torch: see the module's docstring
+
+        check_model_fits(predictor, sensor)
+        self.predictor = predictor
+        self.camera_ids: Sequence[str] = sensor.camera_ids
+        self.reference = ReferenceFrames(sensor.n_cameras, (predictor.image_size, predictor.image_size),
+                                         reference_bundles, patience)
+        self.match: ReferenceMatch | None = None  # once the reference is taken from 2 frames or more
+
+    def reset(self) -> None:
+        """Take the reference again from the next frames."""
+        self.reference.reset()
+        self.match = None
+
+    def add(self, images: np.ndarray, camera_ok: np.ndarray) -> FrameResult:
+        """One frame: images (C, H, W) uint8 and camera_ok (C,) in the sensor's camera order.
+
+        Raises what predict raises (InputError, FloatingPointError); the frame has been counted then.
+        """
+        camera_ok = np.asarray(camera_ok, dtype=bool)
+        reference = self.reference
+        if reference.images is None:
+            taken = reference.add(images, camera_ok)
+            if taken and reference.rest_levels is not None:
+                self.match = ReferenceMatch(reference.rest_levels)
+            return FrameResult(camera_ok, for_reference=True, reference_taken=taken)
+        usable = camera_ok & reference.cameras
+        result = FrameResult(usable, unreferenced=camera_ok & ~reference.cameras)
+        if self.match is not None:
+            result.match_changed = self.match.add(images, reference.images, usable)
+        if usable.any():
+            result.forces = self.predictor.predict(images, reference.images, camera_ids=self.camera_ids,
+                                                   camera_ok=usable)
+        return result
 
 
 class ReferenceMatch:

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from tactile_fusion.approximate_sync import ApproximateTimeSync
+from tactile_fusion.approximate_sync import ApproximateTimeSync, SyncCounters, camera_sync_settings
 
 CAMERAS = ["cam0", "cam1", "cam2", "cam3"]
 PERIOD = 0.025  # 40 fps
@@ -138,6 +138,49 @@ def test_out_of_order_messages_are_dropped_and_counted():
     assert sync.dropped.out_of_order == 1 and sync.dropped.per_stream["a"] == 1
 
 
+def test_stamps_that_jump_back_start_the_synchronisation_over():
+    """A bag replayed with --loop: the same 40 frames again and again. Before the restart rule every frame after the
+    first pass was dropped as out of order, for good (0 bundles, 480 drops)."""
+    streams = camera_streams(40, jitter_s=0.002, seed=1, offsets_s=(5.0, 5.003, 4.998, 5.001))
+    arrivals = by_arrival(streams, np.random.default_rng(0))
+    restarts = []
+    sync = ApproximateTimeSync(CAMERAS, **camera_sync_settings(1 / PERIOD),
+                               on_restart=lambda *restart: restarts.append(restart))
+    passes = [[b.items for b in run(sync, arrivals)] for _ in range(4)]
+    assert passes == [[(k,) * 4 for k in range(40)]] * 4
+    assert sync.dropped.out_of_order == 0 and sync.dropped.reset == 0  # every camera had sent its last frame
+    first_camera = arrivals[0][0]
+    assert [(c, round(last, 3), round(stamp, 3)) for c, last, stamp in restarts] == \
+        [(first_camera, round(streams[first_camera][-1][0], 3), round(streams[first_camera][0][0], 3))] * 3
+
+
+def test_a_step_back_of_less_than_restart_jump_is_out_of_order_and_a_larger_one_resets_the_queues():
+    sync = ApproximateTimeSync(["a", "b"], restart_jump_s=0.5)
+    sync.add("a", 10.0, "a0")
+    sync.add("a", 10.1, "a1")
+    assert sync.add("a", 9.7, "late") == []  # 0.4 s back: a late frame
+    assert sync.dropped.out_of_order == 1
+    assert sync.add("a", 9.5, "restarted") == []  # 0.6 s back: a new stream; a0 and a1 cannot be bundled any more
+    assert sync.dropped.reset == 2 and sync.dropped.per_stream == {"a": 3, "b": 0}
+    assert [b.items for b in sync.add("b", 9.5, "b0")] == [("restarted", "b0")]
+
+
+def test_drops_are_counted_into_counters_shared_by_successive_synchronisers():
+    shared = SyncCounters(per_stream={"a": 0, "b": 0, "c": 0})
+    first = ApproximateTimeSync(["a", "b"], dropped=shared)
+    first.add("a", 1.0, "a0")
+    first.add("a", 0.9, "late")
+    first.reset()  # as bundle_node does before it replaces the synchroniser
+    before = shared.snapshot()
+    second = ApproximateTimeSync(["a", "c"], dropped=shared)
+    second.add("c", 2.0, "c0")
+    second.add("c", 1.5, "late")
+    assert (shared.out_of_order, shared.reset, shared.total) == (2, 1, 3)
+    assert str(shared) == "out_of_order 2, reset 1; a 2, c 1"
+    assert str(shared.since(before)) == "out_of_order 1; c 1"
+    assert str(SyncCounters()) == "none; none"
+
+
 def test_queue_overflow_drops_the_oldest():
     sync = ApproximateTimeSync(["a", "b"], queue_size=3)
     for k in range(5):
@@ -167,6 +210,10 @@ def test_single_stream_passes_through():
     ({"stream_ids": ["a", "a"]}, "unique"),
     ({"stream_ids": ["a"], "queue_size": 0}, "queue_size"),
     ({"stream_ids": ["a"], "max_spread_s": 0.0}, "max_spread_s"),
+    ({"stream_ids": ["a"], "max_spread_s": float("nan")}, "max_spread_s must be a finite number > 0, got nan"),
+    ({"stream_ids": ["a"], "min_period_s": float("nan")}, "min_period_s must be a finite number >= 0, got nan"),
+    ({"stream_ids": ["a"], "min_period_s": -0.1}, "min_period_s"),
+    ({"stream_ids": ["a"], "restart_jump_s": float("inf")}, "restart_jump_s"),
 ])
 def test_bad_parameters_are_rejected(kwargs, message):
     with pytest.raises(ValueError, match=message):

@@ -1,11 +1,14 @@
+import dataclasses
 from collections import deque
 
 import numpy as np
 import pytest
 
 from tactile_description import load_sensor
+from tactile_fusion.inference import load_predictor
 from tactile_fusion.live_estimation import (
     BundleSequence,
+    LiveEstimation,
     ProcessingLoad,
     ReferenceFrames,
     ReferenceMatch,
@@ -59,6 +62,88 @@ def test_the_reference_knows_how_far_its_own_frames_lie_from_it():
     assert one.add(frames[0], np.array([True, True])) and one.rest_levels is None
     with pytest.raises(ValueError, match=r"reference frames are \(2, 32, 32\)"):
         reference.add(frames[0][:, :16], np.array([True, True]))
+
+
+def test_a_camera_without_usable_images_is_left_out_of_the_reference_after_patience():
+    """A camera dead when the capture begins: after `patience` frames the reference is taken from the last `count`
+    over the other cameras; the dead one gets no reference frame (black)."""
+    reference = ReferenceFrames(3, (2, 2), count=2, patience=5)
+    cam1_dead = np.array([True, False, True])
+    frames = [np.full((3, 2, 2), level, np.uint8) for level in (10, 20, 30, 41, 50)]
+    assert [reference.add(f, cam1_dead) for f in frames] == [False] * 4 + [True]
+    assert reference.cameras.tolist() == [True, False, True] and reference.frames_taken == 2
+    assert np.all(reference.images[[0, 2]] == 46) and not reference.images[1].any()  # (41 + 50) / 2 -> 46
+    reference.reset()
+    assert reference.cameras is None and reference.frames_seen == 0
+    assert [reference.add(f, np.ones(3, bool)) for f in frames[:2]] == [False, True]
+    assert reference.cameras.all()
+
+
+def test_the_reference_waits_while_no_camera_is_usable_in_each_of_the_last_frames():
+    reference = ReferenceFrames(2, (1, 1), count=2, patience=3)
+    frame = np.ones((2, 1, 1), np.uint8)
+    for ok in ([True, False], [False, True]) * 3:  # the cameras take turns: never one usable in two frames running
+        assert not reference.add(frame, np.array(ok))
+    assert reference.images is None and reference.frames_taken == 0
+    assert reference.add(frame, np.array([False, True]))  # cam1 usable in the last two frames
+    assert reference.cameras.tolist() == [False, True]
+
+
+#: Two frames at rest, then a press off the centre (nearer cam0 than the other cameras).
+PRESS = {"name": "press", "seed": 0, "indenter": {"shape": "sphere", "diameter_mm": 10},
+         "timeline": [{"rest": {"frames": 2}}, {"press": {"x_mm": 18.0, "y_mm": 20.0, "depths_mm": [1.0]}}]}
+
+
+@pytest.fixture(scope="module")
+def press_frames():
+    return list(Simulator(load_sensor()).stream(parse_scene(PRESS)))
+
+
+@pytest.fixture(scope="module")
+def shipped_predictor():
+    return load_predictor()
+
+
+def test_a_sensor_description_listing_the_cameras_in_another_order_gives_the_same_estimates(press_frames,
+                                                                                          shipped_predictor):
+    """Frames come in the sensor description's camera order (fusion_node, tactile-bag eval), the model has its own:
+    the shipped model's estimate of the press, with every camera and without cam0, whichever order is described."""
+    sensor = load_sensor()
+    order = [1, 0, 3, 2]
+    reordered = dataclasses.replace(sensor, cameras=tuple(sensor.cameras[i] for i in order))
+    results = {}
+    for description, index in ((sensor, [0, 1, 2, 3]), (reordered, order)):
+        live = LiveEstimation(shipped_predictor, description, reference_bundles=2)
+        assert [live.add(f.images[index], f.camera_ok[index]).reference_taken for f in press_frames[:2]] == \
+            [False, True]
+        pressed = press_frames[2].images[index]
+        without_cam0 = np.array([c != "cam0" for c in description.camera_ids])
+        results[description.camera_ids] = [live.add(pressed, np.ones(4, bool)), live.add(pressed, without_cam0)]
+    (full, degraded), (full_reordered, degraded_reordered) = results.values()
+    assert full.forces[..., 2].sum() > 0.5  # a real press (1 mm deep): 1.1 N
+    np.testing.assert_allclose(full_reordered.forces, full.forces, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(degraded_reordered.forces, degraded.forces, rtol=1e-6, atol=1e-9)
+    assert np.abs(degraded.forces - full.forces).max() > 1e-3  # leaving cam0 out matters: the mask was reordered too
+
+
+def test_a_camera_left_out_of_the_reference_is_not_used_until_the_reference_is_taken_again(press_frames,
+                                                                                         shipped_predictor):
+    sensor = load_sensor()
+    live = LiveEstimation(shipped_predictor, sensor, reference_bundles=2, patience=3)
+    cam2_dead = np.array([True, True, False, True])
+    rest = press_frames[0].images
+    assert [live.add(rest, cam2_dead).reference_taken for _ in range(3)] == [False, False, True]
+    assert live.reference.cameras.tolist() == cam2_dead.tolist()
+    pressed = press_frames[2]
+    result = live.add(pressed.images, pressed.camera_ok)  # cam2 is back, with nothing to compare its images with
+    assert result.unreferenced.tolist() == [False, False, True, False] and result.camera_ok.tolist() == \
+        cam2_dead.tolist()
+    np.testing.assert_array_equal(result.forces, shipped_predictor.predict(pressed.images, live.reference.images,
+                                                                           camera_ok=cam2_dead))
+    live.reset()
+    assert [live.add(rest, np.ones(4, bool)).reference_taken for _ in range(2)] == [False, True]
+    result = live.add(pressed.images, pressed.camera_ok)
+    assert result.camera_ok.all() and not result.unreferenced.any()
 
 
 #: Presses (noise of sigma 1.5), then cam3 knocked askew for frames 60-109 (as in the effects scene), then set right.

@@ -1,0 +1,110 @@
+"""The fusion node in this process (real rclpy and DDS, the shipped model): bundles are handed to its callback, its
+estimates come back through a subscription, its log through stderr."""
+
+import os
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import Image
+
+from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.topics import ESTIMATE_TOPIC
+from tactile_description import load_sensor
+from tactile_fusion.fusion_node import FusionNode
+from tactile_fusion.live_estimation import REFERENCE_PATIENCE_BUNDLES
+from tactile_msgs.msg import ForceDistribution, ImageBundle
+from tactile_sim import Simulator
+from tactile_sim.scene import parse_scene
+
+#: Two frames at rest, then a press.
+PRESS = {"name": "press", "seed": 0, "indenter": {"shape": "sphere", "diameter_mm": 10},
+         "timeline": [{"rest": {"frames": 2}}, {"press": {"x_mm": 18.0, "y_mm": 20.0, "depths_mm": [1.0]}}]}
+
+
+@pytest.fixture(scope="module")
+def press_frames():
+    return list(Simulator(load_sensor()).stream(parse_scene(PRESS)))
+
+
+@pytest.fixture
+def fusion(monkeypatch):
+    """A FusionNode with the shipped model and a reference of 2 bundles, and the list its estimates arrive in."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 60) % 80))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    rclpy.init(args=["--ros-args", "-p", "reference_bundles:=2", "-p", "publish_markers:=false"])
+    node = FusionNode()
+    estimates: list[ForceDistribution] = []
+    node.create_subscription(ForceDistribution, ESTIMATE_TOPIC, estimates.append, 10)
+    try:
+        assert spin_until(node, lambda: node.forces_pub.get_subscription_count() > 0)
+        yield node, estimates
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def spin_until(node, condition, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return bool(condition())
+
+
+def bundle(frame, sequence: int, cameras=("cam0", "cam1", "cam2", "cam3")) -> ImageBundle:
+    """The frame's images of `cameras` as the bundle node bundles them."""
+    sensor_ids = list(load_sensor().camera_ids)
+    stamp = Time(sec=1_700_000_000 + sequence)
+    images = [mono8_to_msg(frame.images[sensor_ids.index(c)], stamp, f"{c}_optical") for c in cameras]
+    msg = ImageBundle(sequence=sequence, camera_ids=list(cameras), images=images)
+    msg.header.stamp = stamp
+    return msg
+
+
+def test_a_camera_dead_at_start_up_is_named_then_left_out_of_the_reference(fusion, press_frames, capfd):
+    node, estimates = fusion
+    without_cam1 = ("cam0", "cam2", "cam3")
+    for sequence in range(REFERENCE_PATIENCE_BUNDLES):
+        node.on_bundle(bundle(press_frames[sequence % 2], sequence, without_cam1))
+    node.on_bundle(bundle(press_frames[2], REFERENCE_PATIENCE_BUNDLES, without_cam1))
+    node.on_bundle(bundle(press_frames[2], REFERENCE_PATIENCE_BUNDLES + 1))  # cam1 is back
+    assert spin_until(node, lambda: len(estimates) == 2)
+    log = capfd.readouterr().err
+    assert "capturing the reference: no usable image of cam1 (0 of 2 complete bundles so far); after 80 bundles" in log
+    assert f"reference frames captured without cam1 ({REFERENCE_PATIENCE_BUNDLES} bundles brought fewer than 2 " \
+        "complete ones): publishing forces without them (listed as missing)" in log
+    assert "images of cam1 arrive again, but the reference frames were taken without them" in log
+    assert [list(e.missing_camera_ids) for e in estimates] == [["cam1"], ["cam1"]]
+    assert all(np.isfinite(e.forces_n).all() and sum(e.forces_n[2::3]) > 0.5 for e in estimates)  # the press
+
+
+def test_every_broken_camera_of_a_bundle_is_named_in_one_line(fusion, press_frames, capfd):
+    node, estimates = fusion
+    for sequence in range(2):
+        node.on_bundle(bundle(press_frames[sequence], sequence))
+    broken = bundle(press_frames[2], 2)
+    broken.images[1].data = bytes(10)  # cam1: too few bytes
+    broken.images[3] = Image(height=4, width=4, encoding="mono8", step=4, data=bytes(16))  # cam3: too small
+    node.on_bundle(broken)
+    assert spin_until(node, lambda: len(estimates) == 1)
+    lines = [line for line in capfd.readouterr().err.splitlines() if "bundle 2:" in line]
+    assert len(lines) == 1 and "unreadable image of cam1" in lines[0] and "cam3 image of 4 x 4 pixels" in lines[0]
+    assert "(1 bundle(s) with unusable images since start)" in lines[0]
+    assert list(estimates[0].missing_camera_ids) == ["cam1", "cam3"]
+
+
+def test_a_malformed_bundle_is_skipped_and_the_node_goes_on(fusion, press_frames, capfd):
+    node, estimates = fusion
+    for sequence in range(2):
+        node.on_bundle(bundle(press_frames[sequence], sequence))
+    malformed = bundle(press_frames[2], 2)
+    malformed.images = malformed.images[:3]  # four camera ids, three images
+    node.on_bundle(malformed)
+    node.on_bundle(bundle(press_frames[2], 3))
+    assert spin_until(node, lambda: len(estimates) == 1)
+    assert not spin_until(node, lambda: len(estimates) > 1, timeout_s=0.3)  # nothing from the malformed bundle
+    assert "bundle 2: malformed bundle (4 camera ids ['cam0', 'cam1', 'cam2', 'cam3'] for 3 image(s); the bundle is " \
+        "skipped)" in capfd.readouterr().err
+    assert list(estimates[0].missing_camera_ids) == []
