@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import pickle
 from pathlib import Path
 
 import torch
@@ -80,16 +81,55 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = ""
     return out_dir
 
 
+#: What to do about a damaged file of a model directory.
+REPLACE_MODEL = "copy the model directory again or retrain it (tactile-fusion train)"
+
+
+def read_json_object(path: Path, remedy: str) -> dict:
+    """The JSON object in the file `path`; ModelFileError naming the file and `remedy` (what to do) if it holds none
+    (truncated, not JSON, another kind of value)."""
+    try:
+        value = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelFileError(f"{path} is damaged, not JSON ({exc}): {remedy}") from exc
+    if not isinstance(value, dict):
+        raise ModelFileError(f"{path} holds a JSON {type(value).__name__}, not an object: {remedy}")
+    return value
+
+
 def read_model_json(model_dir: str | Path) -> dict:
+    """The model.json of a model directory, checked: its format version, and the fields a model is built from
+    (camera ids, bin grid, force scale, model config); ModelFileError naming the file otherwise."""
     path = Path(model_dir) / MODEL_JSON
     if not path.exists():
         raise ModelFileError(f"no model in {model_dir}: {MODEL_JSON} is missing; train one with "
                              "`tactile-fusion train --out DIR` or give the directory of a trained model")
-    description = json.loads(path.read_text())
+    description = read_json_object(path, REPLACE_MODEL)
     if description.get("format_version") != FORMAT_VERSION:
         raise ModelFileError(f"{path}: format_version {description.get('format_version')} is not "
                              f"{FORMAT_VERSION}; retrain the model with this version of tactile_fusion")
+    problem = _description_problem(description)
+    if problem:
+        raise ModelFileError(f"{path}: {problem}; the file is damaged or was edited: {REPLACE_MODEL}")
     return description
+
+
+def _description_problem(description: dict) -> str:
+    """What is wrong with the fields of a model.json that models are built from ("" if nothing)."""
+    cameras, scale = description.get("camera_ids"), description.get("force_scale_n")
+    if not (isinstance(cameras, list) and cameras and all(isinstance(c, str) for c in cameras)):
+        return f"camera_ids must be a non-empty list of camera ids, got {cameras!r}"
+    for key in ("rows", "cols"):
+        value = description.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            return f"{key} must be a whole number >= 1, got {value!r}"
+    if not (isinstance(scale, list) and len(scale) == 3):
+        return f"force_scale_n must be a list of 3 numbers, got {scale!r}"
+    try:
+        ModelConfig.from_dict(description.get("model_config"))
+    except (TypeError, KeyError, ValueError) as exc:
+        return f"model_config {description.get('model_config')!r} is not a model configuration ({exc!r})"
+    return ""
 
 
 def model_components(description: dict) -> tuple[str, ...]:
@@ -115,15 +155,25 @@ def threshold_text(threshold_n: float) -> str:
 
 
 def load_model(model_dir: str | Path) -> ForceFusionNet:
-    """The torch model of a model directory, in evaluation mode."""
+    """The torch model of a model directory, in evaluation mode; ModelFileError naming the file if model.json or
+    model.pt cannot be read or do not fit each other."""
     description = read_model_json(model_dir)
-    model = ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
-                           description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
-                           model_components(description), model_threshold(description))
+    components, threshold = model_components(description), model_threshold(description)
+    try:
+        model = ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
+                               description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
+                               components, threshold)
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{Path(model_dir) / MODEL_JSON}: {exc}; {REPLACE_MODEL}") from exc
     state_path = Path(model_dir) / STATE_DICT
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")
-    model.load_state_dict(torch.load(state_path, map_location="cpu", weights_only=True))
+    try:
+        model.load_state_dict(torch.load(state_path, map_location="cpu", weights_only=True))
+    except (RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        reason = " ".join(str(exc).split())
+        raise ModelFileError(f"{state_path} cannot be read or does not fit {MODEL_JSON} ({reason}): the file is "
+                             f"damaged or of another model; {REPLACE_MODEL}") from exc
     return model.eval()
 
 

@@ -14,13 +14,19 @@ under `accuracy_stale`. None everywhere for a directory without metrics.json.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from tactile_fusion.artifacts import METRICS_JSON, backend_file, default_model_dir, file_sha256
+from tactile_fusion.artifacts import (
+    METRICS_JSON,
+    ModelFileError,
+    backend_file,
+    default_model_dir,
+    file_sha256,
+    read_json_object,
+)
 from tactile_fusion.inference import BACKENDS, load_predictor
 
 BASELINE = "onnxruntime_fp32"
@@ -51,33 +57,44 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
     """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n, frames}}, stale) from
     the model directory's metrics.json, for the backends and precisions there are now: the entries whose file is
     still the one measured, and the keys of those whose file changed since (or has no recorded SHA-256).
-    ({}, []) without metrics.json."""
+    ({}, []) without metrics.json; ModelFileError for a metrics.json that is damaged or lacks figures."""
     path = model_dir / METRICS_JSON
     if not path.exists():
         return {}, []
-    recorded = json.loads(path.read_text()).get("backends", {})
+    remedy = f"measure the model again (tactile-fusion export --model {model_dir} --measure)"
+    recorded = read_json_object(path, remedy).get("backends", {})
+    if not isinstance(recorded, dict):
+        raise ModelFileError(f"{path}: backends must be an object, got {recorded!r}; {remedy}")
     accuracy, stale = {}, []
     for backend, precision in ((b, p) for b, precisions in BACKENDS.items() for p in precisions):
         key = f"{backend}_{precision}"
         entry, model_file = recorded.get(key), backend_file(model_dir, backend, precision)
         if entry is None:
             continue
+        if not isinstance(entry, dict):
+            raise ModelFileError(f"{path}: the figures of {key} must be an object, got {entry!r}; {remedy}")
         if not model_file.exists() or entry.get("model_file_sha256") != file_sha256(model_file):
             stale.append(key)
             continue
-        accuracy[key] = {"rmse_bin_fz_n": entry["rmse_bin_n"][2], "rmse_total_fz_n": entry["rmse_total_n"][2],
-                         "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n"),
-                         "frames": entry.get("frames")}
+        try:
+            accuracy[key] = {"rmse_bin_fz_n": entry["rmse_bin_n"][2], "rmse_total_fz_n": entry["rmse_total_n"][2],
+                             "max_abs_deviation_from_torch_fp32_n": entry.get("max_abs_deviation_from_torch_fp32_n"),
+                             "frames": entry.get("frames")}
+        except (KeyError, IndexError, TypeError) as exc:
+            raise ModelFileError(f"{path}: the figures of {key} are incomplete ({exc!r}); {remedy}") from exc
     return accuracy, stale
 
 
 def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int = 30,
               threads: int | None = 1) -> dict:
     """{backend_precision: {ms_per_frame, p90_ms, ratio_to_baseline, accuracy}} plus the setting, for one model
-    directory."""
+    directory. runs: timed calls per backend, at least 1 (ValueError otherwise)."""
+    if runs < 1:
+        raise ValueError(f"benchmark: runs must be >= 1, got {runs}")
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
     predictors = {f"{backend}_{precision}": load_predictor(model_dir, backend, precision, threads)
                   for backend, precisions in BACKENDS.items() for precision in precisions}
+    accuracy, stale = recorded_accuracy(model_dir)  # a damaged metrics.json is refused before the runs
     baseline = predictors[BASELINE]
     images, reference = synthetic_frame(len(baseline.camera_ids), baseline.image_size)
     times = {key: [] for key in predictors}
@@ -87,7 +104,6 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
     while any(len(t) < runs for t in times.values()):
         for key, predictor in predictors.items():
             times[key] += call_times_s(predictor, images, reference, min(block, runs - len(times[key])))
-    accuracy, stale = recorded_accuracy(model_dir)
     results = {key: {"backend": predictors[key].backend, "precision": predictors[key].precision,
                      "ms_per_frame": float(np.median(t) * 1e3), "p90_ms": float(np.percentile(t, 90) * 1e3),
                      "accuracy": accuracy.get(key)}

@@ -37,7 +37,7 @@ from tactile_fusion.artifacts import (
     read_model_json,
     threshold_text,
 )
-from tactile_fusion.data import DatasetMismatchError, load_dataset_frames
+from tactile_fusion.data import DatasetMismatchError, FrameDataError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
 from tactile_fusion.metrics import (
     CONTACT_LEVEL_N,
@@ -69,33 +69,46 @@ class SettingsError(ValueError):
     """A training or model setting out of its range (the message names it)."""
 
 
-def _settings(args, **train_overrides) -> tuple[ModelConfig, TrainConfig]:
-    """The model and training settings of `train` and `recalibrate`, checked before any frame is simulated."""
+def _setting(check, *args, **kwargs):
+    """check(*args, **kwargs), its ValueError (a setting out of range, which the message names) a SettingsError."""
     try:
-        return _model_config(args), replace(_train_config(args), **train_overrides)
+        return check(*args, **kwargs)
     except ValueError as exc:
         raise SettingsError(str(exc)) from exc
 
 
+def _settings(args, cameras: int, **train_overrides) -> tuple[ModelConfig, TrainConfig]:
+    """The model and training settings of `train` and `recalibrate`, checked before any frame is simulated; the batch
+    sizes against the fewest cameras a model of the command has (batch normalisation, TrainConfig.check_batch_sizes)."""
+    try:
+        model_config, train_config = _model_config(args), replace(_train_config(args), **train_overrides)
+        train_config.check_batch_sizes(cameras)
+    except ValueError as exc:
+        raise SettingsError(str(exc)) from exc
+    return model_config, train_config
+
+
 def _fractions(text: str) -> list[float]:
     """--fractions: comma-separated data fractions in (0, 1], checked before the base model trains for minutes."""
+    from tactile_fusion.recalibration import checked_fractions
+
     try:
-        fractions = [float(f) for f in text.split(",")]
-    except ValueError:
-        fractions = []
-    if not fractions or not all(0.0 < f <= 1.0 for f in fractions):
-        raise SettingsError(f"--fractions must be comma-separated numbers in (0, 1], got {text!r}")
-    return fractions
+        return checked_fractions(text.split(","))
+    except ValueError as exc:
+        raise SettingsError(f"--fractions must be comma-separated numbers in (0, 1], got {text!r}") from exc
 
 
-def _frame_count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number of frames >= 1, got {text!r}")
-    return value
+def _whole_number(minimum: int, unit: str, why: str = ""):
+    """An argparse type: a whole number of `unit` >= `minimum` (`why`: the reason for that minimum, if not plain)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be a whole number of {unit} >= {minimum}{why}, got {text!r}")
+        return value
+    return parse
 
 
 def _train_config(args) -> TrainConfig:
@@ -114,20 +127,19 @@ def _further_draws(args, sensor):
     """--head-extra-draws as pipeline.further_draws resolves it, checked before anything trains."""
     from tactile_fusion.pipeline import further_draws
 
-    try:
-        return further_draws(sensor, args.scene, args.dataset, args.frames, args.head_extra_draws,
-                             progress=not (args.quiet or getattr(args, "json", False)))
-    except ValueError as exc:
-        raise SettingsError(str(exc)) from exc
+    return _setting(further_draws, sensor, args.scene, args.dataset, args.frames, args.head_extra_draws,
+                    progress=not (args.quiet or getattr(args, "json", False)))
 
 
 def cmd_train(args) -> int:
-    from tactile_fusion.pipeline import scene_source, train_and_export, training_splits
+    from tactile_fusion.pipeline import check_resumable, scene_source, train_and_export, training_splits
 
+    if args.resume:
+        check_resumable(args.out)
     _threads(args)
     sensor = load_sensor(args.sensor)
     args.image_size = sensor.cameras[0].output_size[0]
-    model_config, train_config = _settings(args)
+    model_config, train_config = _settings(args, sensor.n_cameras)
     head_extra = _further_draws(args, sensor)
     splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
@@ -159,7 +171,7 @@ def _eval_sets(args, sensor, model_dir: Path) -> list[tuple[str, object]]:
                             "takes the test split of the model's training data)")
     progress = not (args.json or args.quiet)
     if args.dataset:
-        sets = [(f"dataset {Path(args.dataset).name}", load_dataset_frames(args.dataset, sensor))]
+        sets = [(f"dataset {Path(args.dataset).name}", load_dataset_frames(args.dataset, sensor).first(args.frames))]
     elif args.scene and args.split != "test":
         frames = scene_frames(sensor, args.scene, frames=args.frames, progress=progress)
         sets = [(f"{frames.scene} (all)", frames)]
@@ -180,22 +192,26 @@ def _eval_sets(args, sensor, model_dir: Path) -> list[tuple[str, object]]:
 def cmd_eval(args) -> int:
     from tactile_fusion.artifacts import write_json
     from tactile_fusion.evaluation import evaluate
-    from tactile_fusion.plots import plot_fz_maps
+    from tactile_fusion.plots import grid_bin_size_mm, plot_fz_maps
 
+    if args.precision not in BACKENDS[args.backend]:
+        raise SettingsError(f"--precision {args.precision}: the {args.backend} backend runs "
+                            f"{', '.join(BACKENDS[args.backend])}; choose one of those or another --backend")
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
     check_model_fits(predictor, sensor)
     results = {}
     for name, frames in _eval_sets(args, sensor, model_dir):
-        metrics, predicted = evaluate(predictor, frames)
+        metrics, predicted = evaluate(predictor, frames, progress=not (args.json or args.quiet))
         metrics["contact"] = contact_metrics(predicted, frames.bin_forces_n, sensor.grid.bin_centers_m(),
                                              args.contact_level)
         results[name] = metrics
         if args.out:
             slug = name.replace(" ", "_").replace("/", "_").replace("(", "").replace(")", "")
             plot_fz_maps(frames.bin_forces_n, predicted, Path(args.out) / f"fz_map_{slug}.png",
-                         f"{name}: Fz per bin ({args.backend} {args.precision})")
+                         f"{name}: Fz per bin ({args.backend} {args.precision})",
+                         bin_size_mm=grid_bin_size_mm(sensor.grid))
     first = next(iter(results.values()))
     report = {"rmse_bin_n": first["rmse_bin_n"], "rmse_total_n": first["rmse_total_n"],
               "model": str(model_dir), "backend": args.backend, "precision": args.precision, "data_sets": results}
@@ -212,14 +228,16 @@ def cmd_eval(args) -> int:
 
 
 def cmd_recalibrate(args) -> int:
-    from tactile_fusion.study import run_recalibration_study
+    from tactile_fusion.study import camera_to_add, run_recalibration_study
 
     _threads(args)
     sensor = load_sensor(args.sensor)
+    added_camera = _setting(camera_to_add, sensor, args.add_camera)
     args.image_size = sensor.cameras[0].output_size[0]
-    model_config, train_config = _settings(args, recalibration_epochs=args.recalibration_epochs)
+    # The base model, without the added camera, has the fewest cameras.
+    model_config, train_config = _settings(args, sensor.n_cameras - 1, recalibration_epochs=args.recalibration_epochs)
     fractions = _fractions(args.fractions)
-    report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, args.add_camera, fractions,
+    report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, added_camera, fractions,
                                      model_config, train_config, Path(args.out),
                                      progress=not (args.json or args.quiet), head_extra=_further_draws(args, sensor))
     if args.json:
@@ -228,18 +246,26 @@ def cmd_recalibrate(args) -> int:
         print(metrics_table({"full training": report["full_training"]["metrics"]}
                             | {f"recalibrated {100 * r['fraction']:.0f} %": r["metrics"]
                                for r in report["recalibration"]}))
-        print(f"full training {report['full_training']['wall_time_s']:.1f} s, recalibration with all data "
-              f"{report['recalibration'][-1]['wall_time_s']:.1f} s: {report['speedup_full_data']:.1f}x faster; "
-              f"written to {args.out}")
+        speedup = report["speedup"]
+        print(f"full training {report['full_training']['wall_time_s']:.1f} s, recalibration with "
+              f"{100 * speedup['fraction']:.0f} % of the data {report['recalibration'][-1]['wall_time_s']:.1f} s: "
+              f"{speedup['factor']:.1f}x faster; written to {args.out}")
     return 0
 
 
 def cmd_export(args) -> int:
-    from tactile_fusion.pipeline import export_model_dir, fit_threshold_of_model_dir, held_out_split, measure_model_dir
+    from tactile_fusion.pipeline import (
+        checked_model,
+        export_model_dir,
+        fit_threshold_of_model_dir,
+        held_out_split,
+        measure_model_dir,
+    )
 
     _threads(args)
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
+    checked_model(model_dir, sensor)  # a model of another sensor is refused before any frame is simulated
     # Training data that cannot be read is refused before anything in the directory is rewritten.
     test_split = held_out_split(model_dir, sensor, "test") if args.measure else None
     if args.fit_threshold:
@@ -250,7 +276,7 @@ def cmd_export(args) -> int:
     for precision, path in export_model_dir(model_dir, sensor).items():
         print(f"{precision}: {path}")
     if test_split is not None:
-        metrics, measured_on = measure_model_dir(model_dir, test_split, args.threads)
+        metrics, measured_on = measure_model_dir(model_dir, sensor, test_split, args.threads)
         print(metrics_table({f"{metrics['data']['scene']} test ({b})": m for b, m in metrics["backends"].items()}))
         print(f"figures of {measured_on} written to {model_dir / METRICS_JSON}")
     return 0
@@ -284,17 +310,20 @@ def cmd_bench(args) -> int:
 
 def _training_options(parser: argparse.ArgumentParser) -> None:
     model, train = ModelConfig(), TrainConfig()
-    parser.add_argument("--scene", default="paper_grid", help="scene name or YAML file to simulate (default "
-                        "%(default)s)")
-    parser.add_argument("--dataset", help="train on a dataset written by `tactile-sim generate` instead")
-    parser.add_argument("--frames", type=_frame_count, help="use only the first N frames of the scene or dataset")
+    data = parser.add_mutually_exclusive_group()
+    data.add_argument("--scene", default="paper_grid", help="scene name or YAML file to simulate (default "
+                      "%(default)s)")
+    data.add_argument("--dataset", help="train on a dataset written by `tactile-sim generate` instead")
+    parser.add_argument("--frames", type=_whole_number(3, "frames", " (a train/val/test split needs 3)"),
+                        help="use only the first N frames of the scene or dataset")
     parser.add_argument("--epochs", type=int, default=train.max_epochs,
                         help="at most this many end-to-end epochs (default %(default)s, sized for the default scene's "
                         "32340 training frames: scale it for a smaller or larger data set)")
     parser.add_argument("--head-epochs", type=int, default=train.head_epochs,
                         help="then at most this many epochs of the head alone on cached conv features (default "
-                        "%(default)s, sized like --epochs)")
-    parser.add_argument("--head-extra-draws", type=int,
+                        "%(default)s, sized like --epochs; 0: no head phase, no imperfect copy and one least-squares "
+                        "fit, whatever --head-cycles says)")
+    parser.add_argument("--head-extra-draws", type=_whole_number(0, "draws"),
                         help="the head phase and the least-squares fits also learn from this many further draws of "
                         "the scene (its presses drawn again from seed + 1, ...: other positions, depths and noise; "
                         "default 1 for a scene, 0 for a dataset, which cannot be drawn again)")
@@ -349,7 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(p, with_model: bool, threads: int = 1):
         p.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
-        p.add_argument("--threads", type=int, default=threads, help="CPU threads (default %(default)s)")
+        p.add_argument("--threads", type=_whole_number(1, "threads"), default=threads,
+                       help="CPU threads (default %(default)s)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         if with_model:
             p.add_argument("--model", help="model directory (default: the shipped model)")
@@ -357,19 +387,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train a model from the simulator or a dataset, export it, evaluate it")
     common(p, False, threads=os.cpu_count() or 1)
     _training_options(p)
-    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out")
+    p.add_argument("--resume", action="store_true", help="continue from the checkpoints in --out (refused where --out "
+                   "holds a finished model and no checkpoint: leave it out to train that model again from scratch)")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("eval", help="RMSE per bin and on the total force, per component")
     common(p, True)
     p.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
-    p.add_argument("--precision", choices=PRECISIONS, default="fp32")
-    p.add_argument("--scene", help="evaluate on this scene (name or YAML file) instead of the test split of the "
-                   "model's training data")
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                   help="; ".join(f"{b}: {', '.join(ps)}" for b, ps in BACKENDS.items()) + " (default %(default)s)")
+    data = p.add_mutually_exclusive_group()
+    data.add_argument("--scene", help="evaluate on this scene (name or YAML file) instead of the test split of the "
+                      "model's training data")
+    data.add_argument("--dataset", help="evaluate on every frame of this dataset (the first N with --frames; "
+                      "--split does not apply)")
     p.add_argument("--split", choices=["all", "test"],
-                   help="with --scene: every frame (the default), or its held-out 20 %% drawn from its seed")
-    p.add_argument("--dataset", help="evaluate on every frame of this dataset")
-    p.add_argument("--frames", type=_frame_count, help="only the first N frames")
+                   help="with --scene only: every frame (the default), or its held-out 20 %% drawn from its seed")
+    p.add_argument("--frames", type=_whole_number(1, "frames"),
+                   help="only the first N frames of each data set: of the test split, the scene (or its --split), "
+                   "the dataset and each hard case")
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
     p.add_argument("--out", help="write metrics.json and Fz map PNGs here")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
@@ -401,7 +437,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="milliseconds per frame of every backend and precision, batch of one, next to "
                        "its test-split accuracy")
     common(p, True)
-    p.add_argument("--runs", type=int, default=300, help="timed runs per backend (default %(default)s)")
+    p.add_argument("--runs", type=_whole_number(1, "runs"), default=300,
+                   help="timed runs per backend (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench)
     return parser
@@ -412,8 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, SceneError, InputError,
-            SettingsError, CheckpointMismatchError) as exc:
+    except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, FrameDataError, SceneError,
+            InputError, SettingsError, CheckpointMismatchError, FloatingPointError) as exc:
         print(f"tactile-fusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

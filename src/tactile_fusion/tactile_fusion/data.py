@@ -4,6 +4,7 @@ the sensor description, and split 70/10/20 deterministically from the scene's se
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -12,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tactile_description import SensorDescription
-from tactile_sim import Scene, Simulator, open_dataset
+from tactile_sim import DatasetError, Scene, Simulator, open_dataset
 
 #: Train / validation / test fractions (the paper's split).
 SPLIT_FRACTIONS = (0.7, 0.1, 0.2)
@@ -21,6 +22,11 @@ SPLITS = ("train", "val", "test")
 
 class DatasetMismatchError(ValueError):
     """Frames that do not fit the sensor description (camera count or ids, bin grid, image size)."""
+
+
+class FrameDataError(ValueError):
+    """Frames that cannot be trained or evaluated on: too few to split, or ground-truth forces that are NaN or Inf (the
+    message names the data and what to do)."""
 
 
 @dataclass(frozen=True)
@@ -37,6 +43,11 @@ class FrameSet:
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
+
+    def first(self, n: int | None) -> FrameSet:
+        """The first `n` frames (all of them when None or more), as views: a memory-mapped dataset stays mapped."""
+        return replace(self, images=self.images[:n], bin_forces_n=self.bin_forces_n[:n],
+                       camera_ok=self.camera_ok[:n])
 
     def subset(self, indices: np.ndarray) -> FrameSet:
         """The frames at `indices` (loaded into memory)."""
@@ -61,10 +72,10 @@ def split_indices(n_frames: int, seed: int, fractions: tuple[float, float, float
     """Deterministic 70/10/20 split of frame indices: a permutation drawn from `seed`, cut in three.
 
     Returns {"train": idx, "val": idx, "test": idx}, each sorted. Every split gets at least one frame when
-    n_frames >= 3.
+    n_frames >= 3; fewer raise FrameDataError.
     """
     if n_frames < 3:
-        raise ValueError(f"split_indices: need at least 3 frames for a train/val/test split, got {n_frames}")
+        raise FrameDataError(f"a train/val/test split needs at least 3 frames, got {n_frames}: use more frames")
     order = np.random.default_rng(seed).permutation(n_frames)
     n_val = max(1, round(fractions[1] * n_frames))
     n_test = max(1, round(fractions[2] * n_frames))
@@ -73,11 +84,50 @@ def split_indices(n_frames: int, seed: int, fractions: tuple[float, float, float
     return {name: np.sort(idx) for name, idx in cuts.items()}
 
 
+def first_frames_split(total: int, seed: int, frames: int | None = None) -> dict:
+    """The 70/10/20 `split_indices` of the first `frames` of `total` frames (of all of them when None, or when
+    `frames` exceeds `total`), drawn from `seed`: the split that training makes of a scene or dataset."""
+    return split_indices(total if frames is None else min(frames, total), seed)
+
+
 def split_frames(frames: FrameSet, n_frames: int | None = None) -> dict[str, FrameSet]:
     """The 70/10/20 split of `frames` (of its first `n_frames` when given) drawn from its seed, each split copied
     into memory: {"train": ..., "val": ..., "test": ...}."""
-    n = len(frames) if n_frames is None else min(n_frames, len(frames))
-    return {name: frames.subset(idx) for name, idx in split_indices(n, frames.seed).items()}
+    return {name: frames.subset(idx) for name, idx in first_frames_split(len(frames), frames.seed, n_frames).items()}
+
+
+def forces_sha256(*forces: np.ndarray) -> str:
+    """Hex SHA-256 of float32 force arrays, one after the other: which frames (and in which order) some data holds, as
+    training.json and the checkpoints record it."""
+    digest = hashlib.sha256()
+    for array in forces:
+        digest.update(np.ascontiguousarray(array, dtype=np.float32))
+    return digest.hexdigest()
+
+
+#: Frames whose forces are checked for NaN or Inf at a time (a memory-mapped dataset's need not fit in memory).
+FINITE_CHECK_FRAMES = 4096
+
+
+def first_non_finite_frame(forces: np.ndarray) -> int | None:
+    """Index of the first frame of (N, rows, cols, 3) forces that holds a NaN or Inf; None when all are finite."""
+    for start in range(0, len(forces), FINITE_CHECK_FRAMES):
+        chunk = np.asarray(forces[start:start + FINITE_CHECK_FRAMES])
+        bad = ~np.isfinite(chunk.reshape(len(chunk), -1)).all(axis=1)
+        if bad.any():
+            return start + int(np.argmax(bad))
+    return None
+
+
+def check_finite_targets(**frame_sets: FrameSet) -> None:
+    """Raise FrameDataError unless every ground-truth force of the named frame sets (e.g. train=..., val=...) is
+    finite: a NaN trains a model whose validation error is NaN, and that keeps its random weights."""
+    for name, frames in frame_sets.items():
+        bad = first_non_finite_frame(frames.bin_forces_n)
+        if bad is not None:
+            raise FrameDataError(f"the {name} frames of {frames.scene or 'the data'} (seed {frames.seed}) hold NaN or "
+                                 f"Inf forces, first in frame {bad} of them: a model cannot learn from them; fix or "
+                                 "regenerate the data")
 
 
 def describe_splits(splits: dict[str, FrameSet]) -> dict:
@@ -120,6 +170,10 @@ def load_dataset_frames(path: str | Path, sensor: SensorDescription) -> FrameSet
     if ds.forces.shape != (n, sensor.grid.rows, sensor.grid.cols, 3) or ds.reference.shape != (c, h, w):
         raise DatasetMismatchError(f"dataset {path}: forces {ds.forces.shape} / reference {ds.reference.shape} do "
                                    f"not match its {n} frames of {c} x {h} x {w} images; rewrite the dataset")
+    bad = first_non_finite_frame(ds.forces)
+    if bad is not None:
+        raise DatasetError(f"dataset {path}: forces.npy holds NaN or Inf, first in frame {bad}; the file is damaged or "
+                           "was written by a broken simulation: regenerate the dataset (tactile-sim generate)")
     return FrameSet(images=ds.images, bin_forces_n=np.asarray(ds.forces, dtype=np.float32),
                     reference=np.array(ds.reference), camera_ok=np.asarray(ds.camera_ok, dtype=bool),
                     camera_ids=tuple(meta["camera_ids"]), scene=str(meta["scene"]), seed=int(meta["seed"]))

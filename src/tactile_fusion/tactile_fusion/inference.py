@@ -70,7 +70,8 @@ class ForcePredictor:
 
     def predict_batch(self, images: np.ndarray, reference: np.ndarray, camera_ids: Sequence[str] | None = None,
                       camera_ok: np.ndarray | None = None) -> np.ndarray:
-        """Several frames: images (B, C, H, W), reference (C, H, W), camera_ok (B, C) -> (B, rows, cols, 3)."""
+        """Several frames: images (B, C, H, W), reference (C, H, W), camera_ok (B, C) -> (B, rows, cols, 3); no frames
+        (B = 0, uint8 or float) give an empty (0, rows, cols, 3)."""
         images = self._checked(images, "images", camera_ids, batched=True)
         reference = self._checked(reference, "reference", camera_ids, batched=False)
         return self._finite(self._run(self._masked(images, reference, camera_ok, camera_ids), reference))
@@ -105,7 +106,7 @@ class ForcePredictor:
                 bad = np.argwhere(~np.isfinite(array))[0]
                 raise InputError(f"{name}: contains NaN or Inf (first at index {tuple(int(i) for i in bad)}): a "
                                  "broken camera? Mark it as such upstream; the model needs finite grey levels")
-            if array.min() < 0 or array.max() > 255:
+            if array.size and (array.min() < 0 or array.max() > 255):
                 raise InputError(f"{name}: float grey levels must lie in [0, 255], got [{array.min()}, "
                                  f"{array.max()}]")
             checked = np.rint(array).astype(np.uint8)
@@ -159,7 +160,7 @@ class OnnxRuntimePredictor(ForcePredictor):
         size = description["model_config"]["image_size"]
         super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision,
                          model_components(description), model_threshold(description))
-        self.session = onnx_session(onnx_path, threads)
+        self.session = _graph_session(Path(onnx_path), threads)
         named, applied = graph_threshold(self.session.get_modelmeta().custom_metadata_map)
         if named and applied != self.fz_threshold_n:
             raise ModelFileError(f"{onnx_path} applies the Fz threshold {applied} N, its model.json says "
@@ -168,6 +169,19 @@ class OnnxRuntimePredictor(ForcePredictor):
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]
+
+
+def _graph_session(path: Path, threads: int | None):
+    """An `onnx_session` of a model directory's graph file; ModelFileError if ONNX Runtime cannot load it (truncated,
+    not a graph, an operator it does not know)."""
+    from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
+
+    try:
+        return onnx_session(path, threads)
+    except (ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.Fail, ort_errors.NotImplemented) as exc:
+        raise ModelFileError(f"{path} cannot be loaded by ONNX Runtime ({exc}): the graph is damaged or of an "
+                             f"incompatible version; re-export it (tactile-fusion export --model {path.parent})"
+                             ) from exc
 
 
 def onnx_session(graph: str | Path | bytes, threads: int | None, spinning: bool = True):

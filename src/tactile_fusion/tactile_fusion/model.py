@@ -17,6 +17,7 @@ newtons. A trained model then soft-thresholds Fz (`fz_threshold_n`, see `to_newt
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -50,13 +51,19 @@ class ModelConfig:
     feature_activation: str = "relu"            # of the fully connected layers, a key of FEATURE_ACTIVATIONS
 
     def __post_init__(self):
+        for name in ("image_size", "hidden_features", "camera_features"):
+            if not _is_count(getattr(self, name)):
+                raise ValueError(f"ModelConfig: {name} must be a whole number >= 1, got {getattr(self, name)!r}")
+        if not self.conv_channels or not all(_is_count(c) for c in self.conv_channels):
+            raise ValueError(f"ModelConfig: conv_channels must be one or more whole numbers >= 1, got "
+                             f"{self.conv_channels!r}")
         pooled = self.image_size // 2 ** len(self.conv_channels)
         if pooled < 1 or self.image_size % 2 ** len(self.conv_channels):
             raise ValueError(f"ModelConfig: image_size {self.image_size} must be divisible by 2^"
                              f"{len(self.conv_channels)} (one 2x pooling per conv block); use fewer conv_channels")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"ModelConfig: dropout must be in [0, 1), got {self.dropout}")
-        if self.fusion_rank is not None and self.fusion_rank < 1:
+        if self.fusion_rank is not None and not _is_count(self.fusion_rank):
             raise ValueError(f"ModelConfig: fusion_rank must be >= 1 or None, got {self.fusion_rank}")
         if self.feature_activation not in FEATURE_ACTIVATIONS:
             raise ValueError(f"ModelConfig: feature_activation must be one of {list(FEATURE_ACTIVATIONS)}, got "
@@ -79,6 +86,11 @@ class ModelConfig:
         d = {"feature_activation": "sigmoid", **d}
         d["conv_channels"] = tuple(d["conv_channels"])
         return cls(**d)
+
+
+def _is_count(value) -> bool:
+    """Whether `value` is a whole number >= 1 (not a bool, which would be 1 by accident)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= 1
 
 
 class ConvBlock(nn.Module):
@@ -339,8 +351,12 @@ def estimated_components(bin_forces_n: torch.Tensor | np.ndarray) -> tuple[str, 
     weights come out exactly zero, and computing them would be two thirds of the fusion layer's work and of its
     weights in every stored copy of the model (docs/learning.md). Such a component is left out, and the model
     outputs exactly 0 for it, saying so in its model.json. All three if every component is zero (nothing to learn).
+    NaN or Inf forces raise ValueError (a NaN is no force that the data excites).
     """
-    nonzero = np.any(np.asarray(bin_forces_n).reshape(-1, 3) != 0, axis=0)
+    forces = np.asarray(bin_forces_n).reshape(-1, 3)
+    if not np.isfinite(forces).all():
+        raise ValueError("estimated_components: the training forces hold NaN or Inf")
+    nonzero = np.any(forces != 0, axis=0)
     return tuple(c for c, n in zip(FORCE_COMPONENTS, nonzero, strict=True) if n) or FORCE_COMPONENTS
 
 
@@ -350,10 +366,13 @@ def force_scale_from_targets(bin_forces_n: torch.Tensor, floor_fraction: float =
     One number per component, not per bin: most bins are zero in most samples, so a per-bin standard
     deviation is zero and dividing by it gives Inf/NaN (SENSOR_BRIEF hazards). A component that is (nearly)
     zero everywhere gets at least `floor_fraction` of the largest component's scale, and an all-zero data
-    set gets 1 N, so the scale is always finite and > 0.
+    set gets 1 N, so the scale is always finite and > 0. Targets holding NaN or Inf raise ValueError (their RMS is no
+    scale).
     """
     rms = torch.sqrt(torch.mean(bin_forces_n.reshape(-1, 3).to(torch.float64) ** 2, dim=0))
+    if not torch.isfinite(rms).all():
+        raise ValueError("force_scale_from_targets: the training forces hold NaN or Inf (or overflow float64)")
     largest = float(rms.max())
-    if not largest > 0.0 or not torch.isfinite(rms).all():
+    if not largest > 0.0:
         return torch.ones(3)
     return torch.clamp(rms, min=floor_fraction * largest).to(torch.float32)

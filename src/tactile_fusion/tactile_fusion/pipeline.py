@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import platform
 import time
 from collections.abc import Iterable
@@ -23,30 +22,34 @@ from tactile_fusion.artifacts import (
     check_model_fits,
     file_sha256,
     load_model,
+    read_json_object,
     read_model_json,
     save_model,
     write_json,
 )
 from tactile_fusion.data import (
     DatasetMismatchError,
+    FrameDataError,
     FrameSet,
     SceneDraws,
+    check_finite_targets,
     describe_splits,
+    first_frames_split,
+    forces_sha256,
     load_dataset_frames,
     simulate_frames,
     simulate_splits,
     split_frames,
-    split_indices,
 )
 from tactile_fusion.evaluation import evaluate
 from tactile_fusion.export import export_onnx, quantize_int8
 from tactile_fusion.fz_threshold import fit_fz_threshold
 from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, estimated_components, force_scale_from_targets
-from tactile_fusion.plots import plot_fz_maps
+from tactile_fusion.plots import grid_bin_size_mm, plot_fz_maps
 from tactile_fusion.sources import ImageSource
 from tactile_fusion.training import TrainConfig, TrainResult, build_model, train_phases
-from tactile_sim import DatasetError, SceneError, load_scene
+from tactile_sim import DatasetError, Scene, SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
 #: Further draws of a training scene that the head phase learns from by default (SceneDraws; none for a dataset).
@@ -55,6 +58,10 @@ DEFAULT_EXTRA_DRAWS = 1
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
 CHECKPOINTS = "checkpoint_*.pt"
 FZ_MAP_PNG = "fz_map.png"
+#: The splits that training holds out (whose forces' SHA-256 training.json records, `held_out_split`).
+HELD_OUT = ("val", "test")
+#: What to do about a damaged training.json.
+REPLACE_RECORD = "restore it from a copy of the model directory, or retrain the model (tactile-fusion train)"
 
 
 def scene_frames(sensor: SensorDescription, scene_name: str, split: str | None = None, frames: int | None = None,
@@ -68,7 +75,7 @@ def scene_frames(sensor: SensorDescription, scene_name: str, split: str | None =
     if split is None:
         indices = np.arange(len(scene) if frames is None else min(frames, len(scene)))
     else:
-        indices = split_indices(len(scene), scene.seed)[split][:frames]
+        indices = first_frames_split(len(scene), scene.seed)[split][:frames]
     return simulate_frames(sensor, scene, indices, progress=progress)
 
 
@@ -79,17 +86,14 @@ def training_splits(sensor: SensorDescription, scene_name: str | None, dataset: 
     if dataset is not None:
         return split_frames(load_dataset_frames(dataset, sensor), frames)
     scene = load_scene(scene_name or DEFAULT_SCENE, sensor)
-    n_frames = len(scene) if frames is None else min(frames, len(scene))
-    return simulate_splits(sensor, scene, split_indices(n_frames, scene.seed), progress)
+    return simulate_splits(sensor, scene, first_frames_split(len(scene), scene.seed, frames), progress)
 
 
 def further_draws(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None, frames: int | None,
                   draws: int | None, progress: bool) -> SceneDraws:
     """The further draws of the training scene that the head phase learns from besides the training split
     (`--head-extra-draws`), of its first `frames` frames when given. None: one draw for a scene, none for a dataset,
-    which cannot be drawn again (asking for draws of a dataset is an error)."""
-    if draws is not None and draws < 0:
-        raise ValueError(f"--head-extra-draws must be >= 0, got {draws}")
+    which cannot be drawn again (asking for draws of a dataset is an error; SceneDraws refuses a negative count)."""
     if dataset is not None:
         if draws:
             raise ValueError(f"--head-extra-draws {draws}: a dataset cannot be drawn again; further draws need a "
@@ -105,7 +109,9 @@ def train_model(train: FrameSet, val: FrameSet, model_config: ModelConfig, train
                 checkpoint_dir: Path | None, resume: bool, progress: bool, head_extra: Iterable[FrameSet] = (),
                 fz_threshold: bool = False) -> tuple[ForceFusionNet, dict]:
     """Train on `train` with early stopping on `val`, the head also on `head_extra` (`further_draws`), ending with the
-    Fz threshold if `fz_threshold` (train_phases); returns the model and the training results of each phase."""
+    Fz threshold if `fz_threshold` (train_phases); returns the model and the training results of each phase.
+    Non-finite targets are refused before anything is computed from them (data.FrameDataError)."""
+    check_finite_targets(training=train, validation=val)
     scale = force_scale_from_targets(torch.from_numpy(train.bin_forces_n))
     rows, cols = train.bin_forces_n.shape[1:3]
     model = build_model(model_config, train.camera_ids, rows, cols, scale, train_config.seed,
@@ -174,11 +180,12 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     training_wall_s = time.perf_counter() - started
     save_model(model, out_dir, sensor.name)
     export_all(model, out_dir)
-    metrics = record_test_metrics(out_dir, splits["test"], data_source, threads)
+    metrics = record_test_metrics(out_dir, splits["test"], data_source, sensor, threads)
     write_json(out_dir / TRAINING_JSON, {
         "train_config": asdict(train_config),
         "model_config": model_config.to_dict(),
-        "data": {"source": data_source, **describe_splits(splits), "head_extra": head_extra.describe()},
+        "data": {"source": data_source, **describe_splits(splits), "head_extra": head_extra.describe(),
+                 "split_targets_sha256": {k: forces_sha256(splits[k].bin_forces_n) for k in HELD_OUT}},
         "sensor": sensor.name,
         "phases": {p: r.to_dict() if isinstance(r, TrainResult) else r for p, r in results.items()},
         "wall_time_s": {"training": training_wall_s,
@@ -191,9 +198,10 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     return metrics
 
 
-def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, threads: int | None) -> dict:
+def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, sensor: SensorDescription,
+                        threads: int | None) -> dict:
     """Evaluate every backend and precision of a model directory on its test split; write metrics.json and the
-    Fz map (fz_map.png) of ONNX Runtime fp32. Returns the metrics written."""
+    Fz map (fz_map.png, axes in the bins of `sensor`'s grid) of ONNX Runtime fp32. Returns the metrics written."""
     backends, predictions = evaluate_model_dir(model_dir, test, threads)
     metrics = {"data": {"source": data_source, "scene": test.scene, "seed": test.seed, "split": "test",
                         "frames": len(test)},
@@ -201,29 +209,34 @@ def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, threa
     metrics.update({k: metrics["backends"]["onnxruntime_fp32"][k] for k in ("rmse_bin_n", "rmse_total_n")})
     write_json(model_dir / METRICS_JSON, metrics)
     plot_fz_maps(test.bin_forces_n, predictions["onnxruntime_fp32"], model_dir / FZ_MAP_PNG,
-                 f"{test.scene} test split: Fz per bin")
+                 f"{test.scene} test split: Fz per bin", bin_size_mm=grid_bin_size_mm(sensor.grid))
     return metrics
 
 
-def measure_model_dir(model_dir: str | Path, test_split: tuple[FrameSet, str, str], threads: int | None
-                      ) -> tuple[dict, str]:
+def measure_model_dir(model_dir: str | Path, sensor: SensorDescription, test_split: tuple[FrameSet, str, str],
+                      threads: int | None) -> tuple[dict, str]:
     """Measure every backend and precision of a model directory again on `test_split` (`held_out_split`: the
     test split of its training data) and rewrite metrics.json (after an export changed the graphs, their figures
     are stale). Returns the metrics and what they were measured on."""
     model_dir = Path(model_dir)
     test, source, note = test_split
-    model = load_model(model_dir)
-    metrics = record_test_metrics(model_dir, test.select_cameras(model.camera_ids), source, threads)
+    model = checked_model(model_dir, sensor)
+    metrics = record_test_metrics(model_dir, test.select_cameras(model.camera_ids), source, sensor, threads)
     return metrics, f"the test split of {source}{note}"
+
+
+def checked_model(model_dir: str | Path, sensor: SensorDescription) -> ForceFusionNet:
+    """The torch model of a model directory (load_model), after checking that it is `sensor`'s (ModelFileError
+    otherwise)."""
+    model = load_model(model_dir)
+    check_model_fits(model, sensor)
+    return model
 
 
 def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> dict:
     """Re-export the ONNX graphs of a model directory from its torch state dict; {precision: path}. `sensor` must be
     the model's."""
-    model_dir = Path(model_dir)
-    model = load_model(model_dir)
-    check_model_fits(model, sensor)
-    return export_all(model, model_dir)
+    return export_all(checked_model(model_dir, sensor), Path(model_dir))
 
 
 def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription, val: FrameSet) -> dict:
@@ -232,15 +245,14 @@ def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription,
     graphs are stale until re-exported (`export_model_dir`). For models trained before models had a threshold.
     Returns fit_fz_threshold's report."""
     model_dir = Path(model_dir)
-    model = load_model(model_dir)
-    check_model_fits(model, sensor)
+    model = checked_model(model_dir, sensor)
     report = fit_fz_threshold(model, ImageSource(val.select_cameras(model.camera_ids), model.force_scale_n))
     description = read_model_json(model_dir)
     description["fz_threshold_n"] = model.fz_threshold_n
     write_json(model_dir / MODEL_JSON, description)  # model.pt stays: the threshold is none of its weights
     record = model_dir / TRAINING_JSON
     if record.exists():
-        training = json.loads(record.read_text())
+        training = read_json_object(record, REPLACE_RECORD)
         training.setdefault("phases", {})["fz_threshold"] = report
         write_json(record, training)
     return report
@@ -254,9 +266,14 @@ def scene_source(scene: str) -> str:
 
 def training_data(model_dir: Path) -> dict | None:
     """The "data" record of the model directory's training.json (what it was trained on, see `data_identity`), None
-    without training.json."""
+    without training.json; ModelFileError for a damaged one."""
     record = model_dir / TRAINING_JSON
-    return json.loads(record.read_text()).get("data", {}) if record.exists() else None
+    if not record.exists():
+        return None
+    data = read_json_object(record, REPLACE_RECORD).get("data", {})
+    if not isinstance(data, dict):
+        raise ModelFileError(f"{record}: data must be an object, got {data!r}; {REPLACE_RECORD}")
+    return data
 
 
 def training_source(model_dir: Path) -> str | None:
@@ -273,23 +290,66 @@ def held_out_split(model_dir: Path, sensor: SensorDescription, split: str = "tes
     scene).
 
     The split `train_and_export` made of the data that training.json names (a scene, or a dataset). A model
-    directory without training.json gets the default scene's split (and says so); one whose training data cannot be
-    found is refused (ModelFileError), rather than silently measured on other data.
+    directory without training.json gets the default scene's split (and says so). Refused (ModelFileError), rather
+    than silently measured on other data: training data that cannot be found, and data that is no longer what
+    training.json records: another scene name or seed, fewer frames than were trained on (the split of another
+    frame count draws other frames, training frames among them), or for a dataset other forces in the split than
+    were held out (their SHA-256, where training.json has it). A scene simulated again is compared by name, seed and
+    frame count alone: its forces may differ in the last bits on another CPU.
     """
     record = model_dir / TRAINING_JSON
     data = training_data(model_dir)
-    if data is not None:
-        kind, _, name = str(data.get("source", "")).partition(" ")
-        note = ""
-    else:
-        data, kind, name, note = {}, "scene", DEFAULT_SCENE, f" (the model directory has no {TRAINING_JSON})"
+    note = "" if data is not None else f" (the model directory has no {TRAINING_JSON})"
+    data = data if data is not None else {"source": f"scene {DEFAULT_SCENE}"}
+    data_name, source = _read_training_data(record, data, sensor, split)
+    picks = _held_out_picks(record, data, data_name, source, split)[:frames]
+    held_out = source.subset(picks) if isinstance(source, FrameSet) else simulate_frames(sensor, source, picks,
+                                                                                         progress=progress)
+    return held_out, data_name, note
+
+
+def _read_training_data(record: Path, data: dict, sensor: SensorDescription, split: str
+                        ) -> tuple[str, FrameSet | Scene]:
+    """The training data that training.json (`record`, its "data" `data`) names, as "scene NAME" or "dataset PATH",
+    and the frames of that dataset or the scene to simulate."""
+    kind, _, name = str(data.get("source", "")).partition(" ")
     if kind not in ("dataset", "scene"):
         raise ModelFileError(f"{record} names no training data (data.source {data.get('source')!r})")
     try:
-        source = load_dataset_frames(name, sensor) if kind == "dataset" else load_scene(name, sensor)
-    except (OSError, SceneError, DatasetError, DatasetMismatchError) as exc:
+        return f"{kind} {name}", load_dataset_frames(name, sensor) if kind == "dataset" else load_scene(name, sensor)
+    except (OSError, SceneError, DatasetError, DatasetMismatchError, FrameDataError) as exc:
         raise ModelFileError(f"{record} says the model was trained on {kind} {name}, which cannot be read here "
                              f"({exc}); its {split} split is needed") from exc
-    picks = split_indices(min(data.get("frames", len(source)), len(source)), source.seed)[split][:frames]
-    held_out = source.subset(picks) if kind == "dataset" else simulate_frames(sensor, source, picks, progress=progress)
-    return held_out, f"{kind} {name}", note
+
+
+def _held_out_picks(record: Path, data: dict, data_name: str, source: FrameSet | Scene, split: str) -> np.ndarray:
+    """The frame indices of `split` of `source` (a dataset's FrameSet or a Scene) as training drew them, after checking
+    that `source` is what training.json (`record`, its "data" `data`) says the model was trained on."""
+    dataset = isinstance(source, FrameSet)
+    found = {"scene": source.scene if dataset else source.name, "seed": source.seed}
+    differ = [f"{key} {data[key]!r} (now {found[key]!r})" for key in found if data.get(key, found[key]) != found[key]]
+    trained = data.get("frames", len(source))
+    if not isinstance(trained, int) or trained > len(source):
+        differ.append(f"frames {trained!r} (now {len(source)})")
+    if not differ:
+        picks = first_frames_split(len(source), source.seed, trained)[split]
+        recorded = data.get("split_targets_sha256", {}).get(split) if dataset else None
+        if recorded is None or forces_sha256(source.bin_forces_n[picks]) == recorded:
+            return picks
+        differ.append(f"other forces in its {split} split")
+    raise ModelFileError(f"{record} says the model was trained on {data_name} with {', '.join(differ)}: its {split} "
+                         "split drawn now would not be the frames held out from training (it could hold training "
+                         "frames). Put that data back as the model was trained on it (e.g. regenerate the dataset with "
+                         "the same scene, seed and frame count), evaluate on other data explicitly (eval --scene or "
+                         "--dataset), or retrain the model on the data as it is now")
+
+
+def check_resumable(out_dir: str | Path) -> None:
+    """Refuse to resume training in a model directory whose training finished (ModelFileError): it holds a model and
+    no checkpoint (they are deleted when training completes), and resuming there would train a new model from scratch
+    over the finished one. A directory with checkpoints resumes from them; a new or empty one starts afresh."""
+    out_dir = Path(out_dir)
+    if (out_dir / MODEL_JSON).exists() and not any(out_dir.glob(CHECKPOINTS)):
+        raise ModelFileError(f"--resume: {out_dir} holds a finished model ({MODEL_JSON}) and no checkpoint to resume "
+                             "from (training deletes them when it completes): leave out --resume to train it again "
+                             "from scratch, which overwrites it, or choose another --out")

@@ -10,6 +10,8 @@ matplotlib.use("Agg")  # files only, no display needed
 import matplotlib.pyplot as plt
 import numpy as np
 
+from tactile_description import BinGrid
+
 
 def example_frames(true_n: np.ndarray, count: int = 3) -> list[int]:
     """Frames worth showing: the largest total Fz, then the frames at 30 %, 60 %, ... of the ranking."""
@@ -19,14 +21,19 @@ def example_frames(true_n: np.ndarray, count: int = 3) -> list[int]:
 
 
 def plot_fz_maps(true_n: np.ndarray, predicted_n: np.ndarray, path: str | Path, title: str,
-                 frames: list[int] | None = None, bin_size_mm: float = 1.96) -> Path:
-    """Ground truth (top row) and predicted (bottom row) Fz maps in newtons for a few frames, shared colour scale."""
+                 frames: list[int] | None = None, bin_size_mm: tuple[float, float] | None = None) -> Path:
+    """Ground truth (top row) and predicted (bottom row) Fz maps in newtons for a few frames, shared colour scale.
+
+    bin_size_mm: (along x, along y) of a bin of the sensor's grid (`grid_bin_size_mm`), for axes in millimetres; None:
+    axes in bins."""
     frames = frames if frames is not None else example_frames(true_n)
     fig, axes = plt.subplots(2, len(frames), figsize=(3.4 * len(frames) + 0.8, 6.4), squeeze=False,
                              constrained_layout=True)
     vmax = max(float(true_n[frames][..., 2].max()), float(predicted_n[frames][..., 2].max()), 1e-6)
     rows, cols = true_n.shape[1:3]
-    extent = (0, cols * bin_size_mm, rows * bin_size_mm, 0)
+    width, length = (1.0, 1.0) if bin_size_mm is None else bin_size_mm
+    extent = (0, cols * width, rows * length, 0)
+    unit = "bins" if bin_size_mm is None else "mm"
     image = None
     for j, frame in enumerate(frames):
         for i, (label, data) in enumerate((("ground truth", true_n), ("prediction", predicted_n))):
@@ -34,8 +41,8 @@ def plot_fz_maps(true_n: np.ndarray, predicted_n: np.ndarray, path: str | Path, 
             image = ax.imshow(data[frame, :, :, 2], cmap="viridis", vmin=0.0, vmax=vmax, extent=extent)
             total = float(data[frame, :, :, 2].sum())
             ax.set_title(f"frame {frame}: {label}\ntotal Fz {total:.3f} N", fontsize=9)
-            ax.set_xlabel("x (mm)", fontsize=8)
-            ax.set_ylabel("y (mm)", fontsize=8)
+            ax.set_xlabel(f"x ({unit})", fontsize=8)
+            ax.set_ylabel(f"y ({unit})", fontsize=8)
             ax.tick_params(labelsize=7)
     fig.colorbar(image, ax=axes, label="bin Fz (N)", shrink=0.8)
     fig.suptitle(title)
@@ -44,6 +51,18 @@ def plot_fz_maps(true_n: np.ndarray, predicted_n: np.ndarray, path: str | Path, 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def grid_bin_size_mm(grid: BinGrid) -> tuple[float, float]:
+    """(along x, along y) of a bin of `grid` in millimetres, as plot_fz_maps takes it."""
+    return 1e3 * grid.bin_width_m, 1e3 * grid.bin_length_m
+
+
+def recalibration_speedup(full_wall_time_s: float, runs: list[dict]) -> dict:
+    """How much faster than full training recalibration with the largest fraction of the data was (`runs`: the
+    recalibration runs in increasing fraction): {"fraction": that fraction, "factor": full / its wall time}."""
+    largest = runs[-1]
+    return {"fraction": largest["fraction"], "factor": full_wall_time_s / largest["wall_time_s"]}
 
 
 def least_squares_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -81,7 +100,8 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     bx.bar(range(len(names)), times, color=["tab:red"] + ["tab:green"] * len(fractions))
     bx.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
     bx.set_ylabel("wall time (s)")
-    bx.set_title(f"full training / recalibration (100 % data): {sweep['speedup_full_data']:.1f}x")
+    speedup = recalibration_speedup(sweep["full_training"]["wall_time_s"], sweep["recalibration"])
+    bx.set_title(f"full training / recalibration ({100 * speedup['fraction']:.0f} % data): {speedup['factor']:.1f}x")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -16,11 +16,11 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from tactile_fusion.data import FrameSet
+from tactile_fusion.data import FrameSet, check_finite_targets
 from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.metrics import force_metrics
-from tactile_fusion.model import ForceFusionNet
+from tactile_fusion.model import ForceFusionNet, FusionLayer
 from tactile_fusion.sources import CachedSource
 from tactile_fusion.training import TrainConfig, TrainResult, fit, head_dropout
 
@@ -42,18 +42,39 @@ def add_camera(base: ForceFusionNet, camera_ids: tuple[str, ...]) -> ForceFusion
     for module in (model.cnn.trunk, model.cnn.first_layer):
         module.requires_grad_(False)
     k = base.config.camera_features
-    first = model.fusion.reduce if model.fusion.reduce is not None else model.fusion.expand
-    base_first = base.fusion.reduce if base.fusion.reduce is not None else base.fusion.expand
+    # The input of the new fusion layer that takes each input of the base's: its cameras' feature blocks, moved.
+    columns = [camera_ids.index(camera) * k + f for camera in base.camera_ids for f in range(k)]
     with torch.no_grad():
-        first.weight.zero_()
-        for i, camera in enumerate(base.camera_ids):
-            j = camera_ids.index(camera)
-            first.weight[:, j * k:(j + 1) * k] = base_first.weight[:, i * k:(i + 1) * k]
-        if model.fusion.reduce is not None:
-            model.fusion.expand.load_state_dict(base.fusion.expand.state_dict())
-        else:
-            model.fusion.expand.bias.copy_(base.fusion.expand.bias)
+        _start_fusion_from(model.fusion, base.fusion, columns)
     return model
+
+
+def _start_fusion_from(fusion: FusionLayer, base: FusionLayer, columns: list[int]) -> None:
+    """Make `fusion` the map of `base` on its inputs at `columns` and 0 on the others (the new cameras' features).
+
+    Both layers dense, or both factored: the first matrix's columns are copied, its other columns zeroed, and the
+    rest copied. The fusion rank can also lie between the two layers' input counts (at least the base's, below the
+    new layer's and its outputs): then the base is dense (FusionLayer: a rank that allows every map) and the new
+    layer factored, and the base matrix is that product exactly: `reduce` passes the base inputs through (identity
+    rows), `expand` starts with the base matrix. The rank's remaining directions keep their initial `reduce` rows
+    and get zero `expand` columns: they change nothing yet, and they train.
+    """
+    if fusion.reduce is not None and base.reduce is None:
+        n = len(columns)
+        fusion.reduce.weight[:n] = 0.0
+        fusion.reduce.weight[torch.arange(n), columns] = 1.0
+        fusion.expand.weight.zero_()
+        fusion.expand.weight[:, :n] = base.expand.weight
+        fusion.expand.bias.copy_(base.expand.bias)
+        return
+    first = fusion.reduce if fusion.reduce is not None else fusion.expand
+    base_first = base.reduce if base.reduce is not None else base.expand
+    first.weight.zero_()
+    first.weight[:, columns] = base_first.weight
+    if fusion.reduce is not None:
+        fusion.expand.load_state_dict(base.expand.state_dict())
+    else:
+        fusion.expand.bias.copy_(base.expand.bias)
 
 
 def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: TrainConfig,
@@ -65,8 +86,10 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     (training.train_phases), the phase is judged after its fit: if the starting point with only its fusion fitted
     has the lower validation RMSE, that is the model returned (the result's kept_epoch is then 0). Scoring the epochs
     before the fit kept the starting point with 10-50 % of the training data (docs/learning.md). Returns the model,
-    the training result and the wall time in seconds, feature caching and both fits included.
+    the training result and the wall time in seconds, feature caching and both fits included. Non-finite targets are
+    refused (data.FrameDataError).
     """
+    check_finite_targets(training=train, validation=val)
     started = time.perf_counter()
     model = add_camera(base, train.camera_ids)
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
@@ -86,10 +109,18 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     return model, result, time.perf_counter() - started
 
 
+def checked_fractions(fractions) -> list[float]:
+    """Fractions of the training data to recalibrate with, as floats in increasing order; ValueError unless there is
+    at least one and each is a number in (0, 1]."""
+    values = [float(f) for f in fractions]
+    if not values or not all(0.0 < f <= 1.0 for f in values):
+        raise ValueError(f"fractions must be numbers in (0, 1], got {list(fractions)}")
+    return sorted(values)
+
+
 def fraction_subset(frames: FrameSet, fraction: float, seed: int) -> FrameSet:
     """A seeded random `fraction` (0 < fraction <= 1) of `frames`, at least one frame; nested across fractions."""
-    if not 0.0 < fraction <= 1.0:
-        raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+    checked_fractions([fraction])
     order = np.random.default_rng([seed, 7]).permutation(len(frames))
     return frames.subset(np.sort(order[:max(1, round(fraction * len(frames)))]))
 

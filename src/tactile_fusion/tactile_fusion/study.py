@@ -23,12 +23,22 @@ from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.pipeline import train_model, training_splits
-from tactile_fusion.plots import least_squares_line, plot_recalibration
-from tactile_fusion.recalibration import recalibration_sweep
+from tactile_fusion.plots import least_squares_line, plot_recalibration, recalibration_speedup
+from tactile_fusion.recalibration import checked_fractions, recalibration_sweep
 from tactile_fusion.training import TrainConfig
 
 REPORT_JSON = "recalibration.json"
 REPORT_PNG = "recalibration.png"
+
+
+def camera_to_add(sensor: SensorDescription, added_camera: str | None) -> str:
+    """The camera the study adds: `added_camera`, or the sensor's last camera when None; ValueError unless it is one of
+    the sensor's cameras and the sensor has another to train the base model with."""
+    camera = added_camera or sensor.camera_ids[-1]
+    if camera not in sensor.camera_ids or sensor.n_cameras < 2:
+        raise ValueError(f"--add-camera {camera!r}: expected one of {list(sensor.camera_ids)} on a sensor with at "
+                         "least two cameras")
+    return camera
 
 
 def run_recalibration_study(sensor: SensorDescription, scene: str | None, dataset: str | None, frames: int | None,
@@ -38,13 +48,8 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     """Train a model without `added_camera` and one with all cameras, both as `tactile-fusion train` does (the head
     phases also on `head_extra`, further draws of the scene), then recalibrate the first at each data fraction; write
     recalibration.json and recalibration.png into `out_dir` and return the report."""
-    added_camera = added_camera or sensor.camera_ids[-1]
-    if added_camera not in sensor.camera_ids or sensor.n_cameras < 2:
-        raise ValueError(f"--add-camera {added_camera!r}: expected one of {list(sensor.camera_ids)} on a sensor with "
-                         "at least two cameras")
-    if not fractions or any(not 0.0 < f <= 1.0 for f in fractions):
-        raise ValueError(f"--fractions must be numbers in (0, 1], got {fractions}")
-    fractions = sorted(fractions)
+    added_camera = camera_to_add(sensor, added_camera)
+    fractions = checked_fractions(fractions)
     train_config.recalibration_phase()  # settings that cannot recalibrate fail now, not after two trainings
     splits = training_splits(sensor, scene, dataset, frames, progress)
     head_extra = head_extra if head_extra is not None else SceneDraws.none(sensor)
@@ -74,7 +79,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
         "full_training": {"wall_time_s": timings["full"], "metrics": full_metrics},
         "recalibration": runs,
         "trend_lines": trend,
-        "speedup_full_data": timings["full"] / runs[-1]["wall_time_s"],
+        "speedup": recalibration_speedup(timings["full"], runs),
         "note": "wall times include the validation passes; recalibration includes caching the frozen features",
     }
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,7 @@ features of the frozen CNN, see recalibration.py) share it.
 from __future__ import annotations
 
 import copy
-import hashlib
+import math
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -23,7 +23,7 @@ import torch
 from tqdm import tqdm
 
 from tactile_description import FORCE_COMPONENTS
-from tactile_fusion.data import FrameSet
+from tactile_fusion.data import FrameSet, check_finite_targets, forces_sha256
 from tactile_fusion.fz_threshold import fit_threshold_and_fusion
 from tactile_fusion.least_squares import RIDGES, fit_fusion
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components
@@ -105,8 +105,12 @@ class TrainConfig:
         for name in ("max_epochs", "batch_size", "head_batch_size", "patience", "recalibration_epochs", "head_cycles"):
             if getattr(self, name) < 1:
                 raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if not (self.learning_rate > 0 and self.head_learning_rate > 0 and self.loss_eps > 0):
-            raise ValueError("TrainConfig.learning_rate, head_learning_rate and loss_eps must be > 0")
+        for name in ("learning_rate", "head_learning_rate", "loss_eps"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"TrainConfig.{name} must be a finite number > 0, got {getattr(self, name)}")
+        if not (math.isfinite(self.min_learning_rate) and self.min_learning_rate >= 0):
+            raise ValueError(f"TrainConfig.min_learning_rate must be a finite number >= 0, got "
+                             f"{self.min_learning_rate}")
         if self.head_dropout is not None and not 0.0 <= self.head_dropout < 1.0:
             raise ValueError(f"TrainConfig.head_dropout must be in [0, 1), got {self.head_dropout}")
         if self.head_precision not in STEP_PRECISIONS:
@@ -116,6 +120,15 @@ class TrainConfig:
             self.head_augmentation()
         except ValueError as exc:
             raise ValueError(str(exc).replace("Augmentation.", "TrainConfig.head_")) from exc
+
+    def check_batch_sizes(self, n_cameras: int) -> None:
+        """Raise ValueError unless both batch sizes are large enough for batch normalisation with `n_cameras` cameras
+        (`min_batch_frames`): checked before any frame is simulated, not when the phase that uses one starts."""
+        needed = min_batch_frames(n_cameras)
+        for name in ("batch_size", "head_batch_size"):
+            if getattr(self, name) < needed:
+                raise ValueError(f"TrainConfig.{name} must be >= {needed} for a {n_cameras}-camera model (batch "
+                                 f"normalisation needs two images per batch), got {getattr(self, name)}")
 
     def head_augmentation(self) -> Augmentation:
         """The camera imperfections of the head phase's copy of the training frames."""
@@ -227,6 +240,12 @@ def build_model(config: ModelConfig, camera_ids, rows: int, cols: int, force_sca
     return ForceFusionNet(config, camera_ids, rows, cols, force_scale_n, components)
 
 
+def min_batch_frames(n_cameras: int) -> int:
+    """The fewest frames per training step for a model of `n_cameras` cameras: batch normalisation in training mode
+    needs two samples per batch, and each frame brings one per camera."""
+    return -(-2 // n_cameras)
+
+
 def epoch_batches(n: int, batch_size: int, seed: int, epoch: int, min_batch: int = 1) -> list[np.ndarray]:
     """The shuffled batches of one epoch, a function of (seed, epoch) only, so a resumed run repeats them.
 
@@ -267,12 +286,11 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     if len(train) < 1 or len(val) < 1:
         raise ValueError(f"fit: need at least one training and one validation frame, got {len(train)} and "
                          f"{len(val)}")
-    # Batch normalisation in training mode needs two samples per batch; each frame brings one per camera.
-    min_batch = -(-2 // model.n_cameras)
-    if config.batch_size < min_batch or len(train) < min_batch:
-        raise ValueError(f"fit: a {model.n_cameras}-camera model needs batches of at least {min_batch} frames (batch "
-                         f"normalisation needs two images per batch); got batch_size {config.batch_size} and "
-                         f"{len(train)} training frames")
+    config.check_batch_sizes(model.n_cameras)
+    min_batch = min_batch_frames(model.n_cameras)
+    if len(train) < min_batch:
+        raise ValueError(f"fit: a {model.n_cameras}-camera model needs at least {min_batch} training frames (batch "
+                         f"normalisation needs two images per batch), got {len(train)}")
     # The fused implementation updates all parameters in one kernel: 2.4 ms less per head step than Adam's loop over
     # them; in the end-to-end phase it makes no difference in time (docs/learning.md), one optimiser serves both.
     optimizer = torch.optim.Adam(params, lr=config.learning_rate, fused=True)
@@ -368,29 +386,36 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
     from one end-to-end phase, five cycles: 2.30 mN per bin and 57 mN total Fz with 32340 frames of a further draw,
     2.47 / 64 without (docs/learning.md).
 
+    With config.head_epochs 0 there is no head phase: nothing would learn from the imperfect copy, and every further
+    cycle would repeat the same fit, so there is no copy and one cycle, whatever config.head_cycles says.
+
+    Non-finite targets in `train` or `val` are refused first (data.FrameDataError).
+
     Returns {"end_to_end": TrainResult, "head": TrainResult (when it ran), "fusion_fit": least-squares report with
     "cycle_kept", and "head_2", "fusion_fit_2", ... for further cycles; with `fz_threshold` also "fz_threshold" and
     "fusion_refit"}.
     """
+    check_finite_targets(training=train, validation=val)
     checkpoint_dir = Path(checkpoint_dir) if checkpoint_dir is not None else None
     scale = model.force_scale_n
     data = data_identity(train, val) if checkpoint_dir is not None else None  # only checkpoints record it
     results = {"end_to_end": fit(model, ImageSource(train, scale), ImageSource(val, scale), config,
                                  _phase_checkpoint(checkpoint_dir, "end_to_end"), resume, progress, on_epoch_end,
                                  desc="train end-to-end", compared=END_TO_END_COMPARED, data=data)}
-    cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation(), seed=config.seed,
-                                extra=head_extra)
+    head = config.head_epochs > 0
+    cached_train = CachedSource(model, train, "trunk", augmentation=config.head_augmentation() if head else None,
+                                seed=config.seed, extra=head_extra)
     cached_val = CachedSource(model, val, "trunk")
     head_data = data  # a head checkpoint is resumed only on the same extra frames as well
     if data is not None and cached_train.extra_frames:
         head_data = data_identity(train, val, cached_train.targets[len(train):].numpy())
     kept_val_rmse, kept_ridge = results["end_to_end"].best_val_rmse, RIDGES[0]
-    for cycle in range(1, config.head_cycles + 1):
+    for cycle in range(1, (config.head_cycles if head else 1) + 1):
         suffix = "" if cycle == 1 else f"_{cycle}"
         if cycle > 1:
             cached_train.redraw_copy(model, train, config.head_augmentation(), config.seed + cycle - 1)
         before_cycle = copy.deepcopy(model.state_dict())
-        if config.head_epochs:
+        if head:
             results[f"head{suffix}"] = _head_phase(model, cached_train, cached_val, config,
                                                    _phase_checkpoint(checkpoint_dir, f"head{suffix}"), resume,
                                                    progress, on_epoch_end, head_data)
@@ -446,14 +471,10 @@ def data_identity(train: FrameSet, val: FrameSet, extra_targets: np.ndarray | No
     training and validation targets (which frames, in which order); for the head phase's checkpoints also the number
     and a digest of the targets of its extra frames (`extra_targets`, when it has any). Resuming on other frames
     (another scene, `--frames`, dataset, `--head-extra-draws`) would train one model on two data sets."""
-    digest = hashlib.sha256()
-    for frames in (train, val):
-        digest.update(np.ascontiguousarray(frames.bin_forces_n, dtype=np.float32).tobytes())
     identity = {"scene": train.scene, "seed": int(train.seed), "train_frames": len(train), "val_frames": len(val),
-                "targets_sha256": digest.hexdigest()}
+                "targets_sha256": forces_sha256(train.bin_forces_n, val.bin_forces_n)}
     if extra_targets is not None:
-        extra = hashlib.sha256(np.ascontiguousarray(extra_targets, dtype=np.float32).tobytes())
-        identity.update(head_extra_frames=len(extra_targets), head_extra_targets_sha256=extra.hexdigest())
+        identity.update(head_extra_frames=len(extra_targets), head_extra_targets_sha256=forces_sha256(extra_targets))
     return identity
 
 

@@ -172,7 +172,7 @@ def test_a_backend_measured_on_fewer_test_frames_says_so_and_is_compared_on_thos
     shutil.copytree(out, measured)
     monkeypatch.setattr(pipeline, "MEASURED_FRAMES", {"torch_fp16": 5})
     test, source, _ = pipeline.held_out_split(measured, load_sensor())
-    backends = pipeline.record_test_metrics(measured, test, source, threads=1)["backends"]
+    backends = pipeline.record_test_metrics(measured, test, source, load_sensor(), threads=1)["backends"]
     assert backends["torch_fp16"]["frames"] == 5
     assert {e["frames"] for k, e in backends.items() if k != "torch_fp16"} == {12}
     spread = test.subset([0, 3, 6, 8, 11])  # its figures and its deviation from torch fp32 are those of these frames
@@ -283,8 +283,10 @@ def test_export_measure_refuses_a_model_whose_training_data_is_gone(tiny_model, 
     assert all(f.stat().st_mtime_ns > t for f, t in zip(files[1:], written[1:], strict=True))
 
 
-def test_a_model_trained_on_a_dataset_by_relative_path_is_measured_from_anywhere(tmp_path):
+def test_a_model_trained_on_a_dataset_by_relative_path_is_measured_from_anywhere(tmp_path, capsys):
     from tactile_description import load_sensor
+    from tactile_fusion.cli import main
+    from tactile_fusion.data import split_indices
     from tactile_sim import Simulator, load_scene, write_dataset
 
     sensor = load_sensor(CONFIG / "sensor.yaml")
@@ -299,9 +301,24 @@ def test_a_model_trained_on_a_dataset_by_relative_path_is_measured_from_anywhere
     measured = json.loads((model / METRICS_JSON).read_text())["backends"]
     assert measured["onnxruntime_int8"]["model_file_sha256"] == file_sha256(model / ONNX_FILES["int8"])
 
+    # Written again with fewer frames, the dataset's split would draw other frames, training frames among them.
+    write_dataset(Simulator(sensor), load_scene("paper_grid", sensor), tmp_path / "data", progress=False, frames=30,
+                  overwrite=True)
+    assert f"says the model was trained on dataset {tmp_path / 'data'} with frames 40 (now 30): its test split" in \
+        refusal(capsys, "eval", "--model", model, "--quiet")
+    # With more, its first 40 frames are those trained on: the same test split.
+    write_dataset(Simulator(sensor), load_scene("paper_grid", sensor), tmp_path / "data", progress=False, frames=50,
+                  overwrite=True)
+    assert main(["eval", "--model", str(model), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["data_sets"]["paper_grid test split"]["frames"] == 8
+    forces = np.load(tmp_path / "data" / "forces.npy")
+    forces[split_indices(40, data["seed"])["test"][3], 0, 0, 2] = 0.01  # a test frame that is not what was held out
+    np.save(tmp_path / "data" / "forces.npy", forces)
+    assert "with other forces in its test split" in refusal(capsys, "eval", "--model", model, "--quiet")
+
 
 def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
-    result = run("recalibrate", "--frames", "60", "--epochs", "1", "--fractions", "0.5,1.0", "--out", str(tmp_path),
+    result = run("recalibrate", "--frames", "60", "--epochs", "1", "--fractions", "0.5,0.25", "--out", str(tmp_path),
                  "--recalibration-epochs", "2", "--json", *TINY)
     report = json.loads(result.stdout)
     assert report["train_config"]["recalibration_epochs"] == 2
@@ -309,8 +326,10 @@ def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
     resolved = TrainConfig().recalibration_phase().head_precision  # "auto" as this CPU resolves it
     assert [r["step_precision"] for r in report["recalibration"]] == [resolved, resolved]
     assert report["added_camera"] == "cam3" and report["base_cameras"] == 3
-    assert [r["fraction"] for r in report["recalibration"]] == [0.5, 1.0]
-    assert report["speedup_full_data"] > 0
+    assert [r["fraction"] for r in report["recalibration"]] == [0.25, 0.5]
+    # The speed-up is that of the largest fraction, and says which: here not all the data.
+    assert report["speedup"] == {"fraction": 0.5, "factor": pytest.approx(
+        report["full_training"]["wall_time_s"] / report["recalibration"][-1]["wall_time_s"])}
     assert (tmp_path / "recalibration.json").is_file() and (tmp_path / "recalibration.png").is_file()
 
 
@@ -332,7 +351,8 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
     ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
     ("train", ["--head-misalign-rotation-deg", "50"], "TrainConfig.head_misalign_rotation_deg must be in [0, 45]"),
-    ("train", ["--head-extra-draws", "-1"], "--head-extra-draws must be >= 0, got -1"),
+    ("train", ["--head-extra-draws", "-1"],
+     "argument --head-extra-draws: must be a whole number of draws >= 0, got '-1'"),
     ("train", ["--dataset", "data", "--head-extra-draws", "1"],
      "--head-extra-draws 1: a dataset cannot be drawn again"),
     ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be >= 1"),
@@ -363,3 +383,116 @@ def test_a_model_for_another_sensor_is_refused(tiny_model):
     result = run("eval", "--model", str(out), "--sensor", str(CONFIG / "skin_3x3.yaml"), "--frames", "2",
                  check=False)
     assert result.returncode == 2 and "the model is for cameras" in result.stderr
+
+
+def refusal(capsys, *args) -> str:
+    """The last line that `tactile-fusion ARGS`, run in this process, writes to stderr when it refuses its arguments
+    (exit status 2, no traceback): for refusals that come before any frame is simulated."""
+    from tactile_fusion.cli import main
+
+    try:
+        code = main([str(a) for a in args])
+    except SystemExit as exit:  # argparse's own refusals
+        code = exit.code
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err, err
+    return err.strip().splitlines()[-1]
+
+
+@pytest.fixture
+def one_camera_sensor(tmp_path) -> Path:
+    """The reference sensor with its first camera alone."""
+    path = tmp_path / "one_camera.yaml"
+    path.write_text("".join(line for line in (CONFIG / "sensor.yaml").read_text().splitlines(keepends=True)
+                            if not any(f"id: cam{i}" in line for i in (1, 2, 3))))
+    return path
+
+
+@pytest.mark.parametrize("args, message", [
+    ("eval --backend torch --precision int8",
+     "eval: error: --precision int8: the torch backend runs fp32, fp16; choose one of those or another --backend"),
+    ("eval --backend torch --threads -1", "eval: error: argument --threads: must be a whole number of threads >= 1"),
+    ("train --threads 0 --out OUT", "train: error: argument --threads: must be a whole number of threads >= 1"),
+    ("train --frames 2 --out OUT",
+     "train: error: argument --frames: must be a whole number of frames >= 3 (a train/val/test split needs 3)"),
+    ("bench --runs 0", "bench: error: argument --runs: must be a whole number of runs >= 1, got '0'"),
+    ("recalibrate --add-camera nope --out OUT", "recalibrate: error: --add-camera 'nope': expected one of ['cam0'"),
+    ("eval --scene shear --dataset DATA", "eval: error: argument --dataset: not allowed with argument --scene"),
+    ("train --scene shear --dataset DATA --out OUT",
+     "train: error: argument --dataset: not allowed with argument --scene"),
+    ("train --learning-rate inf --out OUT", "train: error: TrainConfig.learning_rate must be a finite number > 0"),
+    ("recalibrate --head-learning-rate inf --out OUT",
+     "recalibrate: error: TrainConfig.head_learning_rate must be a finite number > 0"),
+    ("train --hidden-features 0 --out OUT", "train: error: ModelConfig: hidden_features must be a whole number >= 1"),
+    ("train --conv-channels 4,-8 --out OUT", "train: error: ModelConfig: conv_channels must be one or more whole"),
+    ("train --sensor ONE_CAMERA --head-batch-size 1 --out OUT",
+     "train: error: TrainConfig.head_batch_size must be >= 2 for a 1-camera model"),
+])
+def test_bad_arguments_are_refused_with_an_error_line_before_anything_runs(capsys, tmp_path, one_camera_sensor, args,
+                                                                            message):
+    command, *words = [{"OUT": tmp_path / "out", "ONE_CAMERA": one_camera_sensor}.get(w, w) for w in args.split()]
+    # Should a setting pass unchecked, train and recalibrate would only train briefly on a few frames.
+    brief = ["--frames", "30", "--epochs", "1", "--head-epochs", "1", "--head-cycles", "1", *TINY]
+    assert refusal(capsys, command, *(brief if command in ("train", "recalibrate") else []), *words).startswith(
+        f"tactile-fusion {message}")
+    assert not (tmp_path / "out").exists()
+
+
+def test_eval_of_a_dataset_takes_its_first_frames_shows_progress_and_plots_the_sensors_bins(tiny_model, tmp_path,
+                                                                                            capsys, monkeypatch):
+    from tactile_description import load_sensor
+    from tactile_fusion import plots
+    from tactile_fusion.cli import main
+    from tactile_sim import Simulator, load_scene, write_dataset
+
+    out, _ = tiny_model
+    sensor = load_sensor(CONFIG / "sensor.yaml")
+    data = write_dataset(Simulator(sensor), load_scene("shear", sensor), tmp_path / "data", progress=False, frames=6)
+    plotted = []
+    monkeypatch.setattr(plots, "plot_fz_maps", lambda *args, **kwargs: plotted.append(kwargs["bin_size_mm"]))
+    assert main(["eval", "--model", str(out), "--dataset", str(data), "--frames", "4", "--out", str(tmp_path / "eval"),
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["data_sets"]["dataset data"]["frames"] == 4
+    assert plotted == [pytest.approx((49.0 / 25, 51.0 / 26))]  # a bin of the sensor's grid, in millimetres
+    assert main(["eval", "--model", str(out), "--dataset", str(data), "--frames", "2"]) == 0
+    assert "evaluate shear" in capsys.readouterr().err  # the progress bar, unless --quiet or --json
+    assert "--split applies to --scene only" in refusal(capsys, "eval", "--model", out, "--dataset", data, "--split",
+                                                        "test")
+
+
+def test_export_refuses_a_model_of_another_sensor_before_it_simulates_frames(tiny_model, capsys, monkeypatch):
+    from tactile_fusion import pipeline
+
+    def simulated(*args, **kwargs):
+        raise AssertionError("frames were simulated for a model that does not fit the sensor")
+
+    monkeypatch.setattr(pipeline, "simulate_frames", simulated)
+    out, _ = tiny_model
+    for option in ("--measure", "--fit-threshold"):
+        assert "the model is for cameras" in refusal(capsys, "export", "--model", out, option, "--sensor",
+                                                     CONFIG / "skin_3x3.yaml")
+
+
+def test_resuming_a_finished_model_is_refused_and_leaves_it_as_it_is(tiny_model, tmp_path, capsys):
+    out, _ = tiny_model
+    finished = tmp_path / "model"
+    shutil.copytree(out, finished)
+    before = {f.name: file_sha256(f) for f in finished.iterdir()}
+    message = refusal(capsys, "train", "--out", finished, "--resume", "--frames", "30", "--epochs", "1",
+                      "--head-epochs", "1", *TINY)
+    assert message.startswith(f"tactile-fusion train: error: --resume: {finished} holds a finished model (model.json) "
+                              "and no checkpoint to resume from")
+    assert {f.name: file_sha256(f) for f in finished.iterdir()} == before
+
+
+def test_a_model_that_outputs_inf_is_an_error_line_not_a_traceback(tiny_model, tmp_path, capsys):
+    import torch
+
+    out, _ = tiny_model
+    broken = tmp_path / "model"
+    shutil.copytree(out, broken)
+    weights = torch.load(broken / STATE_DICT)
+    weights["fusion.expand.bias"][0] = float("inf")
+    torch.save(weights, broken / STATE_DICT)
+    assert "torch fp32: the model produced NaN or Inf from finite inputs" in refusal(
+        capsys, "eval", "--model", broken, "--backend", "torch", "--frames", "2", "--quiet")

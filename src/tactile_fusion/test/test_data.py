@@ -7,19 +7,25 @@ import numpy as np
 import pytest
 
 from tactile_description import load_sensor
-from tactile_fusion import data
+from tactile_fusion import data, pipeline
+from tactile_fusion.artifacts import default_model_dir
 from tactile_fusion.data import (
+    SPLITS,
     DatasetMismatchError,
+    FrameDataError,
     SceneDraws,
+    check_finite_targets,
     check_frames_match_sensor,
+    first_frames_split,
+    first_non_finite_frame,
     load_dataset_frames,
     simulate_frames,
     simulate_splits,
     split_frames,
     split_indices,
 )
-from tactile_fusion.pipeline import further_draws, training_splits
-from tactile_sim import Simulator, load_scene, write_dataset
+from tactile_fusion.pipeline import further_draws, held_out_split, scene_frames, training_splits
+from tactile_sim import DatasetError, Simulator, load_scene, write_dataset
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 
@@ -41,6 +47,34 @@ def test_split_is_70_10_20_disjoint_complete_and_deterministic():
     assert all(len(tiny[k]) == 1 for k in tiny)
     with pytest.raises(ValueError, match="at least 3 frames"):
         split_indices(2, seed=0)
+
+
+def test_the_split_of_the_first_frames_is_that_of_those_frames():
+    assert all(np.array_equal(first_frames_split(100, 7, 30)[k], split_indices(30, 7)[k]) for k in SPLITS)
+    assert all(np.array_equal(first_frames_split(100, 7, 500)[k], split_indices(100, 7)[k]) for k in SPLITS)
+    assert all(np.array_equal(first_frames_split(100, 7)[k], split_indices(100, 7)[k]) for k in SPLITS)
+    with pytest.raises(FrameDataError, match="needs at least 3 frames, got 2"):
+        first_frames_split(100, 7, 2)
+
+
+def test_every_command_keeps_the_frames_it_took_of_the_default_scene(sensor, monkeypatch, tmp_path):
+    """The shipped model's test set (eval without --scene, and its test's first 150 frames) and a scene's test split
+    are the test split of the whole scene, their first frames when fewer; training on the first N frames splits
+    those. Captured where the frames would be simulated."""
+    scene = load_scene("paper_grid", sensor)
+    whole = split_indices(len(scene), scene.seed)
+    asked = []
+    monkeypatch.setattr(pipeline, "simulate_frames", lambda sensor, scene, picks, progress=False: asked.append(picks))
+    monkeypatch.setattr(pipeline, "simulate_splits", lambda sensor, scene, splits, progress=False: asked.append(splits))
+    scene_frames(sensor, "paper_grid", "test", 150)
+    held_out_split(default_model_dir(), sensor, "test", 150)  # the shipped model's training.json
+    held_out_split(tmp_path, sensor, "test", 150)             # none: the default scene's
+    held_out_split(default_model_dir(), sensor, "val")
+    training_splits(sensor, "paper_grid", None, 130, False)
+    for picks in asked[:3]:
+        np.testing.assert_array_equal(picks, whole["test"][:150])
+    np.testing.assert_array_equal(asked[3], whole["val"])
+    assert all(np.array_equal(asked[4][k], split_indices(130, scene.seed)[k]) for k in SPLITS)
 
 
 def test_simulated_frames_keep_only_the_requested_indices(sensor):
@@ -121,6 +155,33 @@ def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sens
     skin = load_sensor(CONFIG / "skin_3x3.yaml")
     with pytest.raises(DatasetMismatchError, match=r"cameras \['cam0', 'cam1', 'cam2', 'cam3'\].*regenerate"):
         load_dataset_frames(path, skin)
+
+
+def test_a_dataset_with_non_finite_forces_is_refused_naming_the_file_and_the_frame(sensor, tmp_path):
+    path = write_dataset(Simulator(sensor), load_scene("paper_grid", sensor), tmp_path / "ds", progress=False, frames=5)
+    forces = np.load(path / "forces.npy")
+    forces[3, 2, 1, 2] = np.nan
+    np.save(path / "forces.npy", forces)
+    with pytest.raises(DatasetError, match=r"ds: forces.npy holds NaN or Inf, first in frame 3; .*regenerate"):
+        load_dataset_frames(path, sensor)
+
+
+def test_non_finite_targets_are_found_in_any_chunk_and_named(frames, monkeypatch):
+    monkeypatch.setattr(data, "FINITE_CHECK_FRAMES", 4)
+    assert first_non_finite_frame(frames.bin_forces_n) is None
+    check_finite_targets(training=frames)
+    broken = frames.subset(np.arange(len(frames)))
+    broken.bin_forces_n[9, 0, 0, 0], broken.bin_forces_n[13, 2, 3, 2] = np.inf, np.nan
+    assert first_non_finite_frame(broken.bin_forces_n) == 9
+    with pytest.raises(FrameDataError, match="validation frames of synthetic .* NaN or Inf forces, first in frame 9"):
+        check_finite_targets(training=frames, validation=broken)
+
+
+def test_the_first_frames_are_views_of_the_same_data(frames):
+    first = frames.first(5)
+    assert len(first) == 5 and np.shares_memory(first.images, frames.images)
+    np.testing.assert_array_equal(first.bin_forces_n, frames.bin_forces_n[:5])
+    assert len(frames.first(None)) == len(frames.first(1000)) == len(frames)
 
 
 def test_mismatched_grid_and_image_size_are_named(sensor):

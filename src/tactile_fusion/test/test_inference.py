@@ -9,7 +9,15 @@ import pytest
 import torch
 
 from tactile_description import load_sensor
-from tactile_fusion.artifacts import MODEL_JSON, ONNX_FILES, ModelFileError, check_model_fits, load_model, save_model
+from tactile_fusion.artifacts import (
+    MODEL_JSON,
+    ONNX_FILES,
+    STATE_DICT,
+    ModelFileError,
+    check_model_fits,
+    load_model,
+    save_model,
+)
 from tactile_fusion.camera_out import rest_view
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
 from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
@@ -156,6 +164,55 @@ def test_black_and_saturated_frames_give_finite_forces_in_every_precision(model_
     for backend, precision in (("onnxruntime", "fp32"), ("onnxruntime", "int8"), ("onnxruntime", "fp16"),
                                ("torch", "fp16")):
         assert np.isfinite(load_predictor(out, backend, precision).predict(frame, frames.reference)).all()
+
+
+@pytest.mark.parametrize("backend", ["onnxruntime", "torch"])
+def test_a_batch_of_no_frames_gives_no_forces_for_uint8_and_float_images(model_dir, backend):
+    out, frames = model_dir
+    predictor = load_predictor(out, backend)
+    for dtype in (np.uint8, np.float32):
+        empty = np.empty((0, 2, 16, 16), dtype=dtype)
+        forces = predictor.predict_batch(empty, frames.reference.astype(dtype))
+        assert forces.shape == (0, 3, 4, 3) and forces.dtype == np.float32
+
+
+def _edited_json(path, change):
+    description = json.loads(path.read_text())
+    change(description)
+    path.write_text(json.dumps(description))
+
+
+#: (file, backend, how it is damaged, what the error says): each a damaged copy of a model directory.
+DAMAGED = [
+    (MODEL_JSON, "onnxruntime", lambda p: p.write_text(p.read_text()[:40]), "model.json is damaged, not JSON"),
+    (MODEL_JSON, "torch", lambda p: p.write_text("[1, 2]"), "model.json holds a JSON list, not an object"),
+    (MODEL_JSON, "onnxruntime", lambda p: _edited_json(p, lambda d: d.pop("rows")),
+     "model.json: rows must be a whole number >= 1, got None"),
+    (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.pop("camera_ids")),
+     "model.json: camera_ids must be a non-empty list"),
+    (MODEL_JSON, "onnxruntime", lambda p: _edited_json(p, lambda d: d["model_config"].pop("conv_channels")),
+     "model.json: model_config .* is not a model configuration"),
+    (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(force_scale_n=[1.0, -1.0, 1.0])),
+     "model.json: ForceFusionNet: force_scale_n must be 3 finite positive numbers"),
+    (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(cols=5)),
+     "model.pt cannot be read or does not fit model.json .*size mismatch"),
+    (STATE_DICT, "torch", lambda p: p.write_bytes(p.read_bytes()[:300]), "model.pt cannot be read"),
+    (STATE_DICT, "torch", lambda p: p.write_bytes(b"not a state dict"), "model.pt cannot be read"),
+    (ONNX_FILES["fp32"], "onnxruntime", lambda p: p.write_bytes(p.read_bytes()[:300]),
+     r"model.onnx cannot be loaded by ONNX Runtime .*INVALID_PROTOBUF.*re-export it \(tactile-fusion export"),
+]
+
+
+@pytest.mark.parametrize("name, backend, damage, message", DAMAGED)
+def test_a_damaged_model_file_is_refused_naming_the_file_and_what_to_do(model_dir, tmp_path, name, backend, damage,
+                                                                        message):
+    out, _ = model_dir
+    damaged = tmp_path / "model"
+    shutil.copytree(out, damaged)
+    damage(damaged / name)
+    with pytest.raises(ModelFileError, match=f"{damaged}/{message}") as error:
+        load_predictor(damaged, backend)
+    assert "retrain" in str(error.value) or "re-export" in str(error.value)
 
 
 def test_missing_model_and_unknown_backend_are_explained(tmp_path, model_dir):

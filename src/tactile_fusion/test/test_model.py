@@ -119,6 +119,17 @@ def test_force_scale_of_all_zero_data_is_one():
     torch.testing.assert_close(force_scale_from_targets(torch.zeros(4, 2, 2, 3)), torch.ones(3))
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_forces_have_no_scale_and_no_components(bad):
+    """A NaN in the training forces used to give the scale 1 N silently and count as a force the data excites."""
+    forces = torch.zeros(4, 2, 2, 3)
+    forces[1, 0, 1, 2], forces[2, 1, 1, 0] = 0.3, bad
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        force_scale_from_targets(forces)
+    with pytest.raises(ValueError, match="NaN or Inf"):
+        estimated_components(forces)
+
+
 def test_forward_returns_newtons_through_the_force_scale(tiny_config):
     scale = torch.tensor([0.001, 0.002, 0.05])
     model = ForceFusionNet(tiny_config, ("a",), 2, 2, scale).eval()
@@ -202,6 +213,14 @@ def test_factored_fusion_is_one_linear_map_of_limited_rank():
     (dict(image_size=100, conv_channels=(4, 4, 4)), "divisible"),
     (dict(dropout=1.0), "dropout"),
     (dict(fusion_rank=0), "fusion_rank"),
+    (dict(fusion_rank=-3), "fusion_rank"),
+    (dict(conv_channels=(4, 0, 8)), "conv_channels must be one or more whole numbers >= 1"),
+    (dict(conv_channels=(4, -8)), "conv_channels must be one or more whole numbers >= 1"),
+    (dict(conv_channels=()), "conv_channels must be one or more whole numbers >= 1"),
+    (dict(hidden_features=0), "hidden_features must be a whole number >= 1"),
+    (dict(camera_features=-300), "camera_features must be a whole number >= 1"),
+    (dict(camera_features=True), "camera_features must be a whole number >= 1"),
+    (dict(image_size=0), "image_size must be a whole number >= 1"),
     (dict(feature_activation="tanh"), "feature_activation must be one of"),
 ])
 def test_bad_model_config_is_rejected_with_a_clear_error(kwargs, message):

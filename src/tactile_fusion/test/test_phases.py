@@ -13,14 +13,14 @@ from tactile_description import load_sensor
 from tactile_fusion import least_squares, sources
 from tactile_fusion.artifacts import MODEL_JSON, TRAINING_JSON
 from tactile_fusion.camera_out import rest_view
-from tactile_fusion.data import split_indices
+from tactile_fusion.data import FrameDataError, FrameSet, split_indices
 from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.fz_threshold import fit_fz_threshold, fit_threshold_and_fusion
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.least_squares import fit_fusion, fit_fusion_under_threshold
-from tactile_fusion.model import ForceFusionNet, force_scale_from_targets
+from tactile_fusion.model import ForceFusionNet, ModelConfig, force_scale_from_targets
 from tactile_fusion.pipeline import train_and_export, train_model
-from tactile_fusion.recalibration import add_camera, fraction_subset, recalibrate
+from tactile_fusion.recalibration import add_camera, checked_fractions, fraction_subset, recalibrate
 from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, normalised_rmse
 from tactile_fusion.training import (
     END_TO_END_SETTINGS,
@@ -602,6 +602,56 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
         add_camera(base, ("left",))
 
 
+def test_a_camera_is_added_where_the_fusion_rank_makes_the_base_dense_and_the_new_layer_factored():
+    """Rank 35 with 10 features per camera and 64 outputs: the 3-camera base's fusion layer (30 inputs) is dense, the
+    4-camera model's (40 inputs) factored. The new layer starts as the base's map, exactly, and both of its matrices
+    train."""
+    config = ModelConfig(image_size=16, conv_channels=(4, 4), hidden_features=16, camera_features=10, fusion_rank=35)
+    torch.manual_seed(0)
+    base = ForceFusionNet(config, ("a", "b", "c"), 8, 8, components=("fz",)).eval()
+    with torch.no_grad():
+        base.fusion.expand.bias.normal_()  # a base whose map is not almost zero
+    grown = add_camera(base, ("b", "d", "a", "c"))
+    assert base.fusion.reduce is None and grown.fusion.reduce is not None
+    rng = np.random.default_rng(0)
+    frames = FrameSet(images=rng.integers(0, 256, (5, 4, 16, 16), dtype=np.uint8),
+                      bin_forces_n=np.zeros((5, 8, 8, 3), dtype=np.float32),
+                      reference=rng.integers(0, 256, (4, 16, 16), dtype=np.uint8),
+                      camera_ok=np.ones((5, 4), dtype=bool), camera_ids=("b", "d", "a", "c"))
+    before = predict_torch(base, frames.select_cameras(("a", "b", "c")))
+    np.testing.assert_allclose(predict_torch(grown, frames), before, atol=1e-6)
+    grown.train()
+    grown(torch.from_numpy(frames.images), torch.from_numpy(frames.reference))[..., 2].sum().backward()
+    assert all(float(layer.weight.grad.abs().sum()) > 0 for layer in (grown.fusion.reduce, grown.fusion.expand))
+
+
+def test_training_refuses_non_finite_targets_before_it_trains(frames, tiny_config):
+    train, val = splits(frames)
+    broken = val.subset(np.arange(len(val)))
+    broken.bin_forces_n[2, 1, 1, 2] = np.nan
+    model = model_for(frames, tiny_config)
+    before = copy.deepcopy(model.state_dict())
+    with pytest.raises(FrameDataError, match="validation frames of synthetic .* NaN or Inf forces, first in frame 2"):
+        train_phases(model, train, broken, TrainConfig(max_epochs=1, batch_size=8, head_epochs=1))
+    with pytest.raises(FrameDataError, match="training frames"):
+        train_model(broken, val, tiny_config, TrainConfig(max_epochs=1, batch_size=8), None, False, False)
+    with pytest.raises(FrameDataError, match="validation frames"):
+        recalibrate(model_for(frames.select_cameras(("left",)), tiny_config), train, broken,
+                    TrainConfig(max_epochs=1, batch_size=8, head_batch_size=8))
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+
+
+def test_without_a_head_phase_there_is_no_imperfect_copy_and_one_fit(frames, tiny_config, monkeypatch):
+    """With --head-epochs 0 each head cycle would be the same fit again, and nothing would learn from the copy."""
+    def no_copy(*args, **kwargs):
+        raise AssertionError("an imperfect copy was drawn without a head phase")
+
+    monkeypatch.setattr(Augmentation, "apply_each", no_copy)
+    results = train_phases(model_for(frames, tiny_config), *splits(frames),
+                           TrainConfig(max_epochs=1, batch_size=8, head_epochs=0, head_cycles=3))
+    assert set(results) == {"end_to_end", "fusion_fit"}
+
+
 def test_training_leaves_out_the_components_the_training_forces_never_excite(frames, tiny_config):
     vertical = frames.subset(np.arange(len(frames)))
     vertical.bin_forces_n[..., :2] = 0.0  # presses without shear
@@ -618,6 +668,10 @@ def test_fraction_subsets_are_nested_and_seeded(frames):
     assert {bytes(i) for i in small.images} <= {bytes(i) for i in large.images}
     with pytest.raises(ValueError, match="fraction"):
         fraction_subset(frames, 0.0, seed=1)
+    assert checked_fractions(["0.5", 0.1, 1]) == [0.1, 0.5, 1.0]
+    for bad in ([], [0.5, 1.5], [float("nan")], ["x"]):
+        with pytest.raises(ValueError):
+            checked_fractions(bad)
 
 
 def constant_fz_model(tiny_config, frames, fz_n: float, components=("fx", "fy", "fz")) -> ForceFusionNet:

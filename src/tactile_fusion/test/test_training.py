@@ -243,15 +243,36 @@ def test_single_camera_training_with_one_frame_batches_is_refused_clearly(frames
     one_camera = frames.select_cameras(("left",))
     train, val, scale = sources(one_camera)
     model = build_model(tiny_config, ("left",), 3, 4, scale, seed=0)
-    with pytest.raises(ValueError, match="batches of at least 2 frames"):
+    with pytest.raises(ValueError, match="batch_size must be >= 2 for a 1-camera model"):
         fit(model, train, val, TrainConfig(max_epochs=1, batch_size=1))
+    with pytest.raises(ValueError, match="needs at least 2 training frames"):
+        fit(model, ImageSource(one_camera.subset([0]), scale), val, TrainConfig(max_epochs=1, batch_size=2))
     result = fit(model, train, val, TrainConfig(max_epochs=1, batch_size=2))  # 33 frames: the last one joins
     assert np.isfinite(result.best_val_rmse)
 
 
-def test_bad_train_config_is_rejected():
-    with pytest.raises(ValueError, match="batch_size"):
-        TrainConfig(batch_size=0)
+@pytest.mark.parametrize("setting, value, message", [
+    ("batch_size", 0, "batch_size must be >= 1"),
+    ("learning_rate", float("inf"), "learning_rate must be a finite number > 0, got inf"),
+    ("learning_rate", float("nan"), "learning_rate must be a finite number > 0, got nan"),
+    ("head_learning_rate", float("inf"), "head_learning_rate must be a finite number > 0, got inf"),
+    ("head_learning_rate", 0.0, "head_learning_rate must be a finite number > 0, got 0.0"),
+    ("loss_eps", float("inf"), "loss_eps must be a finite number > 0"),
+    ("min_learning_rate", -1e-5, "min_learning_rate must be a finite number >= 0, got -1e-05"),
+    ("min_learning_rate", float("nan"), "min_learning_rate must be a finite number >= 0, got nan"),
+])
+def test_bad_train_config_is_rejected(setting, value, message):
+    with pytest.raises(ValueError, match=f"TrainConfig.{message}"):
+        TrainConfig(**{setting: value})
+
+
+def test_batch_sizes_are_checked_against_the_camera_count_before_training():
+    config = TrainConfig(batch_size=1, head_batch_size=2)
+    config.check_batch_sizes(2)  # two cameras: one frame brings the two images batch normalisation needs
+    with pytest.raises(ValueError, match="batch_size must be >= 2 for a 1-camera model"):
+        config.check_batch_sizes(1)
+    with pytest.raises(ValueError, match="head_batch_size must be >= 2 for a 1-camera model"):
+        TrainConfig(head_batch_size=1).check_batch_sizes(1)
 
 
 def test_head_phase_has_its_own_epochs_learning_rate_and_batch_size():
