@@ -156,7 +156,7 @@ def test_figures_are_written(tmp_path):
     path = plot_fz_maps(true, true * 0.9, tmp_path / "fz.png", "test")
     assert path.stat().st_size > 10_000
     m = force_metrics(true * 0.9, true)
-    sweep = {"added_camera": "cam3", "base_cameras": 3, "speedup_full_data": 7.0,
+    sweep = {"added_camera": "cam3", "base_cameras": 3,
              "full_training": {"wall_time_s": 70.0, "metrics": m},
              "recalibration": [{"fraction": f, "wall_time_s": 10.0 * f, "metrics": m} for f in (0.1, 0.5, 1.0)]}
     assert plot_recalibration(sweep, tmp_path / "recal.png").stat().st_size > 10_000
