@@ -25,12 +25,12 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import GraphStartError, log_tail, start_graph, stop_nodes
+from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
-from tactile_description.command_line import stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 
@@ -124,18 +124,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sensor = load_sensor(sensor_config)
     except SensorConfigError as exc:
-        print(f"tactile-demo: error: {exc}", file=sys.stderr)
-        return 2
+        return error_exit("tactile-demo", exc)
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
-    try:
-        specs, processes = start_graph(sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model),
-                                       log_dir, monitor)
-    except GraphStartError as exc:
-        monitor.destroy_node()
-        rclpy.try_shutdown()
-        print(f"tactile-demo: error: {exc}", file=sys.stderr)
-        return 2
+    graph = start_tool_graph("tactile-demo", sensor_graph(sensor, sensor_config, "sim", args.scene,
+                                                          model_dir=args.model), log_dir, monitor)
+    if isinstance(graph, int):
+        return graph
+    specs, processes = graph
     started = time.monotonic()
     next_report = started + 1.0
     died = None  # the first node that exited while the graph ran

@@ -31,11 +31,11 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import GraphStartError, spin_until, start_graph, stop_nodes
+from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
-from tactile_description.command_line import stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
 from tactile_fusion.artifacts import ModelFileError
 from tactile_fusion.bench import call_times_s, synthetic_frame
 from tactile_fusion.fusion_node import MARKERS_RATE_HZ
@@ -129,21 +129,17 @@ def main(argv: list[str] | None = None) -> int:
         sensor = load_sensor(sensor_config)
         baseline_ms = inference_ms(args.model, args.backend, args.precision)
     except (SensorConfigError, ModelFileError) as exc:
-        print(f"tactile-latency: error: {exc}", file=sys.stderr)
-        return 2
+        return error_exit("tactile-latency", exc)
     nodes = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
                          precision=args.precision)
     graph = [measured_spec(spec, args.markers_rate) for spec in nodes]
     rclpy.init()
     probe = LatencyProbe()
     windows = []
-    try:
-        specs, processes = start_graph(graph, Path(args.log_dir), probe)
-    except GraphStartError as exc:
-        probe.destroy_node()
-        rclpy.try_shutdown()
-        print(f"tactile-latency: error: {exc}", file=sys.stderr)
-        return 2
+    started = start_tool_graph("tactile-latency", graph, Path(args.log_dir), probe)
+    if isinstance(started, int):
+        return started
+    specs, processes = started
     try:
         if spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC], FIRST_ESTIMATE_TIMEOUT_S):
             spin_until(probe, lambda: False, args.settle)

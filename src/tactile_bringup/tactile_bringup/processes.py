@@ -11,10 +11,12 @@ from pathlib import Path
 
 import rclpy
 from ament_index_python.packages import get_package_prefix
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec
 from tactile_conversions.topics import ESTIMATE_TOPIC
+from tactile_description.command_line import error_exit
 
 #: Time a stuck node gets to write its stacks before it is killed.
 STACK_DUMP_S = 1.0
@@ -83,6 +85,23 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
         stop_nodes(processes)
         raise
     return others + cameras, processes
+
+
+def start_tool_graph(program: str, specs: list[NodeSpec], log_dir: Path, probe: Node
+                     ) -> tuple[list[NodeSpec], list[subprocess.Popen]] | int:
+    """`start_graph` for a command-line tool (tactile-demo, tactile-latency): the specs and processes, or the tool's
+    exit status when the graph did not start: 2 with error_exit's line for a node that exited meanwhile
+    (GraphStartError), 1 for a Ctrl-C or SIGTERM meanwhile. Then `probe` is destroyed and rclpy shut down, and no
+    node is left running (start_graph stops those it started)."""
+    try:
+        return start_graph(specs, log_dir, probe)
+    except (GraphStartError, KeyboardInterrupt, ExternalShutdownException) as exc:
+        probe.destroy_node()
+        rclpy.try_shutdown()
+        if isinstance(exc, GraphStartError):
+            return error_exit(program, exc)
+        print(f"{program}: stopped while the graph was starting", file=sys.stderr)
+        return 1
 
 
 def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> list[int]:

@@ -2,12 +2,22 @@
 
 import functools
 import os
+import select
 import signal
 import sys
 from collections.abc import Callable
 
 # A shell reports a command killed by SIGPIPE as 128 + its number; a command that stops on a closed pipe says so.
 CLOSED_PIPE_EXIT = 128 + signal.SIGPIPE
+#: The exit status of a command refused for its input (argparse's too).
+INPUT_ERROR_EXIT = 2
+
+
+def error_exit(program: str, error: BaseException | str) -> int:
+    """Report why a command refuses its input as one line on stderr (a YAML parser's message spans several: they are
+    joined); INPUT_ERROR_EXIT, for `main` to return."""
+    print(f"{program}: error: {' '.join(str(error).split())}", file=sys.stderr)
+    return INPUT_ERROR_EXIT
 
 
 def stops_quietly_on_closed_pipe(main: Callable[..., int]) -> Callable[..., int]:
@@ -15,7 +25,8 @@ def stops_quietly_on_closed_pipe(main: Callable[..., int]) -> Callable[..., int]
 
     Python ignores SIGPIPE, so a write to a pipe whose reader has exited raises BrokenPipeError, and the
     interpreter would print its traceback and a second one when it flushes stdout at exit. Instead the command
-    stops there with CLOSED_PIPE_EXIT; `finally` blocks (a node graph's shutdown) have run by then.
+    stops there with CLOSED_PIPE_EXIT; `finally` blocks (a node graph's shutdown) have run by then. A broken pipe to
+    anything but stdout is raised as it is.
     """
 
     @functools.wraps(main)
@@ -23,8 +34,21 @@ def stops_quietly_on_closed_pipe(main: Callable[..., int]) -> Callable[..., int]
         try:
             return main(*args, **kwargs)
         except BrokenPipeError:
+            if not _stdout_closed():
+                raise  # a pipe to some other process broke: that is an error of its own
             # The flush at exit would fail again: point stdout at /dev/null (the Python docs' recipe for SIGPIPE).
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return CLOSED_PIPE_EXIT
 
     return wrapped
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe whose reader has gone: polling its write end then reports an error (POLLERR;
+    a failed write's data may already be dropped, so a flush cannot tell)."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, ValueError):  # no file descriptor behind sys.stdout
+        return False

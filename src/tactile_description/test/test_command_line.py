@@ -1,24 +1,24 @@
 """A command line whose reader goes away stops quietly, in a real process with a real pipe."""
 
+import os
 import subprocess
 import sys
 import textwrap
 
 import pytest
 
-from tactile_description.command_line import CLOSED_PIPE_EXIT, stops_quietly_on_closed_pipe
+from tactile_description.command_line import CLOSED_PIPE_EXIT, error_exit, stops_quietly_on_closed_pipe
 
-PRINTS_AFTER_A_PAUSE = textwrap.dedent("""
-    import time
+PRINTS_A_LINE = textwrap.dedent("""
+    import sys
     from tactile_description.command_line import stops_quietly_on_closed_pipe
 
     @stops_quietly_on_closed_pipe
     def main():
-        time.sleep(0.5)  # the reader has gone by now
         try:
             print("a line nobody reads", flush=True)
         finally:
-            print("cleaned up", file=__import__("sys").stderr)
+            print("cleaned up", file=sys.stderr)
         return 0
 
     raise SystemExit(main())
@@ -26,9 +26,10 @@ PRINTS_AFTER_A_PAUSE = textwrap.dedent("""
 
 
 def test_a_closed_pipe_ends_the_command_with_the_shell_status_and_no_traceback():
-    process = subprocess.Popen([sys.executable, "-c", PRINTS_AFTER_A_PAUSE], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
-    process.stdout.close()  # as `| head` does once it has what it wants
+    reader, writer = os.pipe()
+    os.close(reader)  # the reader has gone before the command writes, as `| head` once it has what it wants
+    process = subprocess.Popen([sys.executable, "-c", PRINTS_A_LINE], stdout=writer, stderr=subprocess.PIPE, text=True)
+    os.close(writer)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == CLOSED_PIPE_EXIT == 141
     assert stderr.strip() == "cleaned up"  # finally ran, and nothing else was said
@@ -43,3 +44,17 @@ def test_main_returns_its_own_status_and_other_errors_pass_through():
 
     with pytest.raises(ConnectionResetError):
         failing()
+
+
+def test_a_broken_pipe_to_anything_but_stdout_is_raised():
+    @stops_quietly_on_closed_pipe
+    def talks_to_a_child_that_went_away():
+        raise BrokenPipeError("the pipe to a helper process")
+
+    with pytest.raises(BrokenPipeError, match="helper process"):
+        talks_to_a_child_that_went_away()
+
+
+def test_an_error_is_reported_on_one_line_with_status_2(capsys):
+    assert error_exit("tactile-x run", ValueError("bad.yaml: while parsing\n  in line 3\n   expected ':'")) == 2
+    assert capsys.readouterr().err == "tactile-x run: error: bad.yaml: while parsing in line 3 expected ':'\n"

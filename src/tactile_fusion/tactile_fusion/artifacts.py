@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import FORCE_COMPONENTS, SensorDescription
+from tactile_description.json_file import read_json
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
 
 MODEL_JSON = "model.json"
@@ -87,11 +88,8 @@ REPLACE_MODEL = "copy the model directory again or retrain it (tactile-fusion tr
 
 def read_json_object(path: Path, remedy: str) -> dict:
     """The JSON object in the file `path`; ModelFileError naming the file and `remedy` (what to do) if it holds none
-    (truncated, not JSON, another kind of value)."""
-    try:
-        value = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ModelFileError(f"{path} is damaged, not JSON ({exc}): {remedy}") from exc
+    (unreadable, truncated, not JSON, another kind of value)."""
+    value = read_json(path, ModelFileError, remedy)
     if not isinstance(value, dict):
         raise ModelFileError(f"{path} holds a JSON {type(value).__name__}, not an object: {remedy}")
     return value

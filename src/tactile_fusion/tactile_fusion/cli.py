@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, left_out_components, load_sensor
-from tactile_description.command_line import stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ModelFileError,
@@ -451,8 +451,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, FrameDataError, SceneError,
             InputError, SettingsError, CheckpointMismatchError, FloatingPointError) as exc:
-        print(f"tactile-fusion {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return error_exit(f"tactile-fusion {args.command}", exc)
 
 
 if __name__ == "__main__":

@@ -61,7 +61,7 @@ class ForcePredictor:
 
         camera_ids: the camera of each image, in the given order, when it is not the model's order.
         camera_ok: (C,) bool, False for a camera known to be broken (dropped, frozen): it is shown at rest
-        (`rest_view`), i.e. that camera reports "no contact" and the other cameras carry the estimate.
+        (`camera_out.rest_view`), i.e. that camera reports "no contact" and the other cameras carry the estimate.
         """
         ok = None if camera_ok is None else np.asarray(camera_ok, dtype=bool)[None]
         images = self._checked(images, "images", camera_ids, batched=False)[None]
@@ -77,7 +77,7 @@ class ForcePredictor:
         return self._finite(self._run(self._masked(images, reference, camera_ok, camera_ids), reference))
 
     def _masked(self, images: np.ndarray, reference: np.ndarray, camera_ok, camera_ids) -> np.ndarray:
-        """Images (in the model's camera order) with each camera marked not ok shown at rest (`rest_view`)."""
+        """Images (in the model's camera order), each camera marked not ok shown at rest (`camera_out.rest_view`)."""
         if camera_ok is None:
             return images
         ok = np.asarray(camera_ok, dtype=bool)

@@ -161,7 +161,7 @@ class LiveEstimation:
     def add(self, images: np.ndarray, camera_ok: np.ndarray) -> FrameResult:
         """One frame: images (C, H, W) uint8 and camera_ok (C,) in the sensor's camera order.
 
-        Raises what predict raises (InputError, FloatingPointError); the frame has been counted then.
+        Raises what predict raises (InputError, FloatingPointError); such a frame changes no state.
         """
         camera_ok = np.asarray(camera_ok, dtype=bool)
         reference = self.reference
@@ -172,11 +172,12 @@ class LiveEstimation:
             return FrameResult(camera_ok, for_reference=True, reference_taken=taken)
         usable = camera_ok & reference.cameras
         result = FrameResult(usable, unreferenced=camera_ok & ~reference.cameras)
-        if self.match is not None:
-            result.match_changed = self.match.add(images, reference.images, usable)
         if usable.any():
             result.forces = self.predictor.predict(images, reference.images, camera_ids=self.camera_ids,
                                                    camera_ok=usable)
+        # After predict: a frame it refuses raises before the match's state changes, so no change goes unreported.
+        if self.match is not None:
+            result.match_changed = self.match.add(images, reference.images, usable)
         return result
 
 

@@ -184,8 +184,9 @@ def _edited_json(path, change):
 
 #: (file, backend, how it is damaged, what the error says): each a damaged copy of a model directory.
 DAMAGED = [
-    (MODEL_JSON, "onnxruntime", lambda p: p.write_text(p.read_text()[:40]), "model.json is damaged, not JSON"),
+    (MODEL_JSON, "onnxruntime", lambda p: p.write_text(p.read_text()[:40]), "model.json is not readable UTF-8 JSON"),
     (MODEL_JSON, "torch", lambda p: p.write_text("[1, 2]"), "model.json holds a JSON list, not an object"),
+    (MODEL_JSON, "onnxruntime", lambda p: (p.unlink(), p.mkdir()), "model.json is not readable UTF-8 JSON"),
     (MODEL_JSON, "onnxruntime", lambda p: _edited_json(p, lambda d: d.pop("rows")),
      "model.json: rows must be a whole number >= 1, got None"),
     (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.pop("camera_ids")),

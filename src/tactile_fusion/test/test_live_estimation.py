@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tactile_description import load_sensor
-from tactile_fusion.inference import load_predictor
+from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import (
     BundleSequence,
     LiveEstimation,
@@ -144,6 +144,22 @@ def test_a_camera_left_out_of_the_reference_is_not_used_until_the_reference_is_t
     assert [live.add(rest, np.ones(4, bool)).reference_taken for _ in range(2)] == [False, True]
     result = live.add(pressed.images, pressed.camera_ok)
     assert result.camera_ok.all() and not result.unreferenced.any()
+
+
+def test_a_frame_the_predictor_refuses_leaves_the_reference_match_as_it_was(press_frames, shipped_predictor):
+    """The fusion node reports a camera going off its reference when `add` returns; a frame that raises returns
+    nothing, so it must not have moved the match on (its change would be lost)."""
+    live = LiveEstimation(shipped_predictor, load_sensor(), reference_bundles=2)
+    for frame in press_frames[:2]:
+        live.add(frame.images, frame.camera_ok)
+    checked = live.match._frames
+    broken = press_frames[2].images.astype(np.float32)
+    broken[1, 0, 0] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        live.add(broken, np.ones(4, bool))
+    assert live.match._frames == checked
+    live.add(press_frames[2].images, np.ones(4, bool))
+    assert live.match._frames == checked + 1
 
 
 #: Presses (noise of sigma 1.5), then cam3 knocked askew for frames 60-109 (as in the effects scene), then set right.

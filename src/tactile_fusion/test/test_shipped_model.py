@@ -82,9 +82,11 @@ def test_shipped_model_reports_presses_from_a_fifth_of_a_newton_where_they_are(s
 
 
 def test_a_camera_out_leaves_a_surface_at_rest_without_contact_and_presses_measured(shipped):
-    """A camera that is out is shown at rest (inference.rest_view). Shown as its exact reference, a difference of 0
+    """A camera that is out is shown at rest (camera_out.rest_view). Shown as its exact reference, a difference of 0
     that no training frame has, it made 0.37-0.45 N of contact appear on a surface at rest; with presses the other
-    three cameras carry the estimate (measured on 2000 test frames: 11.1-11.2 mN per bin, 604-625 mN total Fz)."""
+    three cameras carry the estimate (measured on 2000 test frames: 11.1-11.2 mN per bin, 604-625 mN total Fz; on these
+    150, presses near the corner that cam0 sees best: 18.9 mN per bin without cam0, 9.3 times the shipped figure,
+    2.4-5.7 mN without another camera)."""
     model_dir, frames, shipped_metrics = shipped
     predictor = load_predictor(model_dir)
     at_rest = frames.bin_forces_n[..., 2].sum(axis=(1, 2)) == 0
@@ -94,7 +96,7 @@ def test_a_camera_out_leaves_a_surface_at_rest_without_contact_and_presses_measu
         predicted = predictor.predict_batch(np.asarray(frames.images), frames.reference, camera_ok=camera_ok)
         assert predicted[at_rest][..., 2].sum(axis=(1, 2)).max() < CONTACT_LEVEL_N, frames.camera_ids[camera]
         degraded = force_metrics(predicted, frames.bin_forces_n)
-        assert degraded["rmse_bin_n"][2] <= 10 * shipped_metrics["rmse_bin_n"][2], (camera, degraded)
+        assert degraded["rmse_bin_n"][2] <= 11 * shipped_metrics["rmse_bin_n"][2], (camera, degraded)
 
 
 def test_onnxruntime_equals_torch_and_reduced_precisions_stay_within_their_bounds(shipped):

@@ -16,7 +16,7 @@ import json
 import sys
 
 from tactile_description import SensorConfigError, load_sensor
-from tactile_description.command_line import stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
 from tactile_sim.contact import ground_truth_model, press_contact, press_report
 from tactile_sim.dataset import DatasetError, write_dataset
 from tactile_sim.effects import SceneError
@@ -129,18 +129,13 @@ def main(argv: list[str] | None = None) -> int:
         sensor = load_sensor(args.sensor)
         {"press": _press, "generate": _generate, "render": _render, "bench": _bench}[args.command](args, sensor)
     except (SceneError, DatasetError, SensorConfigError, ValueError) as exc:
-        return _error(args.command, str(exc))
+        return error_exit(f"tactile-sim {args.command}", exc)
     except BrokenPipeError:
         raise  # the reader went away: stops_quietly_on_closed_pipe ends the command as a shell tool does
     except OSError as exc:  # a file or directory that cannot be read or written (--out /dev/null/x, a full disk)
-        return _error(args.command, f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc))
+        problem = f"{exc.strerror or exc}: {exc.filename}" if exc.filename else exc
+        return error_exit(f"tactile-sim {args.command}", problem)
     return 0
-
-
-def _error(command: str, message: str) -> int:
-    """Report a bad input or an unusable file on one line; the exit status."""
-    print(f"tactile-sim {command}: error: {message}", file=sys.stderr)
-    return 2
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tactile_description import SensorDescription
+from tactile_description.json_file import read_json
 from tactile_sim.contact import Contact
 from tactile_sim.scene import Scene
 
@@ -135,12 +136,7 @@ class Dataset:
 
 def _read_json(path: Path):
     """The JSON value in `path`; DatasetError if it is missing, unreadable, not UTF-8 or not JSON."""
-    try:
-        return json.loads(path.read_bytes().decode("utf-8"))
-    except FileNotFoundError as exc:
-        raise DatasetError(f"{path.parent} lacks {path.name}; regenerate the data set") from exc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{path} is not readable UTF-8 JSON ({exc}); regenerate the data set") from exc
+    return read_json(path, DatasetError, "regenerate the data set")
 
 
 def _read_contacts(directory: Path, frames: int) -> list[list[dict]]:
