@@ -4,19 +4,41 @@ import json
 import os
 import signal
 import subprocess
+import threading
+import time
 
 import pytest
 
 pytestmark = pytest.mark.system
 
 
+#: How long `running_demo` waits for the demo's first estimate (its graph starts in seconds; 120 s is its duration).
+FIRST_ESTIMATE_TIMEOUT_S = 60.0
+
+
 @pytest.fixture
 def running_demo(ros_domain, graph_tools, tmp_path):
-    """A `tactile-demo` (GraphTools), once it has printed an estimate."""
+    """A `tactile-demo` (GraphTools), once it has printed an estimate; the test fails if none comes within
+    FIRST_ESTIMATE_TIMEOUT_S (a demo that stalls would otherwise hold the test for its whole duration)."""
     process = graph_tools.start(["tactile-demo", "--duration", "120", "--log-dir", str(tmp_path)])
-    for line in process.stdout:  # one line a second: "  3.0 s    41 estimates  total Fz ..."
-        if "estimates" in line and int(line.split()[2]) > 0:
-            return process
+    estimated = threading.Event()
+
+    def read_until_estimate() -> None:  # stops reading once it is seen: finish() reads the rest
+        for line in process.stdout:  # one line a second: "  3.0 s    41 estimates  total Fz ..."
+            if "estimates" in line and int(line.split()[2]) > 0:
+                estimated.set()
+                return
+
+    reader = threading.Thread(target=read_until_estimate, daemon=True)
+    reader.start()
+    reader.join(FIRST_ESTIMATE_TIMEOUT_S)
+    if estimated.is_set():
+        return process
+    if reader.is_alive():  # stalled: end the demo's whole group (its session), then say what it printed
+        os.killpg(process.pid, signal.SIGKILL)
+        reader.join(10.0)
+        pytest.fail(f"no estimate from tactile-demo within {FIRST_ESTIMATE_TIMEOUT_S:g} s (killed): "
+                    + process.stderr.read())
     pytest.fail("tactile-demo ended before its first estimate: " + process.stderr.read())
 
 
@@ -43,3 +65,20 @@ def test_a_node_that_dies_while_the_demo_runs_fails_it(graph_tools, running_demo
     assert running_demo.returncode == 1
     assert "node tactile_bundle exited" in stderr and "tactile_bundle exited early" in stderr, stderr
     assert summary["exit_codes"]["tactile_bundle"] == -signal.SIGKILL, summary
+
+
+def test_sigterm_while_the_graph_starts_ends_the_demo_without_a_traceback_or_a_node_left(ros_domain, graph_tools,
+                                                                                         tmp_path):
+    """The fusion node loads its model for seconds while the demo waits for it (start_graph): a SIGTERM then must
+    stop the nodes started so far and end the demo with a line, not a traceback."""
+    process = graph_tools.start(["tactile-demo", "--duration", "60", "--log-dir", str(tmp_path)])
+    fusion_log = tmp_path / "tactile_fusion.log"
+    deadline = time.monotonic() + 60.0
+    while not fusion_log.exists() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert fusion_log.exists(), "the demo never started its fusion node"
+    process.send_signal(signal.SIGTERM)
+    result = graph_tools.finish(process, 60)  # fails the test if a node of the demo's group is left
+    assert "Traceback" not in result.stderr, result.stderr
+    assert result.returncode == 1 and "stopped while the graph was starting" in result.stderr, result.stderr
+    assert not (tmp_path / "tactile_sim_cameras.log").exists()  # the cameras were never started

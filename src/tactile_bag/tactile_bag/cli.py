@@ -24,10 +24,8 @@ from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
-from tactile_description.command_line import stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, contact_table, metrics_table
-
-USAGE_ERROR = 2
 
 
 def cmd_record(args) -> int:
@@ -76,8 +74,12 @@ def cmd_eval(args) -> int:
         print(json.dumps(summary))
         return 0
     origin = "camera images" if result.source == "images" else "recorded bundles"
-    print(f"{args.bag}: {summary['bundles']} bundles from {origin}, the first {summary['reference_bundles']} "
-          "complete ones averaged into the reference frames; "
+    if summary["cameras_without_reference"]:  # live_estimation.ReferenceFrames' patience: taken without them
+        reference = (f"the last {summary['reference_bundles']} of the first bundles (fewer complete ones came) "
+                     f"averaged into the reference frames without {', '.join(summary['cameras_without_reference'])}")
+    else:
+        reference = f"the first {summary['reference_bundles']} complete ones averaged into the reference frames"
+    print(f"{args.bag}: {summary['bundles']} bundles from {origin}, {reference}; "
           f"{summary['estimates']} estimates ({summary['degraded_estimates']} without every camera)")
     if summary["skipped"]:
         print("skipped: " + ", ".join(f"{reason} {n}" for reason, n in summary["skipped"].items()))
@@ -168,9 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.run(args)
     except ValueError as exc:  # BagError, MessageTypeError, SensorConfigError, ModelFileError, bad arguments
-        message = " ".join(str(exc).split())  # one line, also when a parser's message (YAML) spans several
-        print(f"tactile-bag {args.command}: error: {message}", file=sys.stderr)
-        return USAGE_ERROR
+        return error_exit(f"tactile-bag {args.command}", exc)
 
 
 if __name__ == "__main__":

@@ -6,10 +6,12 @@ compared with the simulator's ground truth recorded beside them.
    taken as they are (a bag without every camera's images, or `source="bundles"`).
 2.-3. The bundles go through fusion_node's own loop (tactile_fusion.live_estimation.LiveEstimation):
    reference frames, the pixel-wise mean of the first `reference_bundles` complete bundles (every camera present
-   and readable; without the cameras that hold the capture up for `REFERENCE_PATIENCE_BUNDLES` bundles), rounded to
-   uint8, those bundles not estimated; then every later bundle through the predictor, a missing or unreadable
-   camera shown at rest (tactile_fusion.camera_out; it reports "no contact") and the estimate counted as degraded, and
-   whether each camera's images still match its reference frame checked (live_estimation.ReferenceMatch).
+   and readable), or, when `REFERENCE_PATIENCE_BUNDLES` bundles bring fewer complete ones, of the last
+   `reference_bundles` of them over the cameras usable in each (the others left out: live_estimation.ReferenceFrames),
+   rounded to uint8, the bundles until then not estimated; a malformed bundle (not one image per camera id) is
+   skipped; then every later bundle through the predictor, a missing or unreadable camera shown at rest
+   (tactile_fusion.camera_out; it reports "no contact") and the estimate counted as degraded, and whether each
+   camera's images still match its reference frame checked (live_estimation.ReferenceMatch).
 4. Each estimate is matched with the ground-truth message nearest to its bundle stamp, if one lies within
    `match_tolerance_s` (the bundle stamp is the median of the cameras' capture stamps, the truth is stamped
    with the capture time), and the paper's metrics are computed over the matched pairs
@@ -31,7 +33,7 @@ from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
-from tactile_conversions.images import frame_from_images
+from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import SensorDescription
@@ -55,6 +57,7 @@ class BundleFrame:
     stamp_s: float
     images: np.ndarray
     camera_ok: np.ndarray  # (C,) bool: False for a camera missing from the bundle or with an unreadable image
+    malformed: bool = False  # not one image per camera id (images.is_malformed_bundle): skipped, not estimated
 
 
 @dataclass
@@ -171,7 +174,7 @@ class FrameReader:
         frame, camera_ok, problems = frame_from_images(camera_ids, images, self.camera_ids, self.shape)
         for reason, _ in problems:
             self.skip(reason)
-        return BundleFrame(stamp_s, frame, camera_ok)
+        return BundleFrame(stamp_s, frame, camera_ok, is_malformed_bundle(camera_ids, images))
 
 
 def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader) -> Iterator[BundleFrame]:
@@ -288,6 +291,8 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         stamps, estimates, camera_ok, off_reference = [], [], [], []
         for frame in frames:
             bundles += 1
+            if frame.malformed:  # counted as skipped by the reader; not a frame of the reference either
+                continue
             result = live.add(frame.images, frame.camera_ok)
             if result.for_reference:
                 continue

@@ -10,6 +10,7 @@ from ament_index_python.packages import get_package_share_directory
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tactile_bag import evaluate
 from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.cli import main
 from tactile_bag.evaluate import FrameReader, evaluate_bag, image_bundles, match_stamps
@@ -20,6 +21,7 @@ from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.live_estimation import REFERENCE_PATIENCE_BUNDLES
 from tactile_fusion.metrics import contact_metrics, force_metrics
+from tactile_msgs.msg import ImageBundle
 from tactile_sim import Simulator
 from tactile_sim.scene import parse_scene
 
@@ -139,7 +141,33 @@ def test_a_camera_dead_from_the_start_is_left_out_of_the_reference_as_in_the_fus
     assert summary["cameras_without_reference"] == ["cam1"] and summary["missing_camera_ids"] == ["cam1"]
     assert summary["estimates"] == summary["degraded_estimates"] == len(frames) - REFERENCE_PATIENCE_BUNDLES
     assert main(["eval", str(tmp_path / "bag"), "--model", str(model_dir), "--backend", "torch"]) == 0
-    assert "the reference frames were taken without cam1" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "the reference frames were taken without cam1" in out
+    assert "of the first bundles (fewer complete ones came) averaged into the reference frames without cam1" in out
+
+
+def test_a_malformed_bundle_is_skipped_once_and_not_counted_towards_the_reference(tmp_path, write_bag, sensor,
+                                                                                   sim_frames, predictor, monkeypatch):
+    """Bundle 5 has four camera ids and three images: it is skipped (counted once, as malformed), and the reference
+    taken without the dead cam1 after REFERENCE_PATIENCE_BUNDLES bundles does not count it among them."""
+    cycles = -(-(REFERENCE_PATIENCE_BUNDLES + 10) // len(sim_frames))
+    frames = [dataclasses.replace(f, index=f.index + k * len(sim_frames), time_s=f.time_s + k * len(sim_frames) / 40,
+                                  camera_ok=np.array([c != "cam1" for c in sensor.camera_ids]))
+              for k in range(cycles) for f in sim_frames]
+    write_bag(tmp_path / "bag", sensor, frames, images=False, bundles=True)
+    read = evaluate.deserialize
+
+    def deserialize(raw, cls, topic, time_ns):
+        msg = read(raw, cls, topic, time_ns)
+        if cls is ImageBundle and msg.sequence == 5:
+            msg.camera_ids = ["cam0", "cam1", "cam2", "cam3"]  # four ids for the three images
+        return msg
+
+    monkeypatch.setattr(evaluate, "deserialize", deserialize)
+    summary = evaluate_bag(tmp_path / "bag", sensor, predictor).summary()
+    assert summary["skipped"] == {"malformed bundle": 1}
+    assert summary["bundles"] == len(frames)
+    assert summary["estimates"] == len(frames) - REFERENCE_PATIENCE_BUNDLES - 1  # the reference waited one more
 
 
 def test_ground_truth_of_an_older_message_definition_is_left_out_and_counted(tmp_path, write_bag, sensor, sim_frames,

@@ -1,15 +1,16 @@
 """ROS node: one real camera (or a video file) of the sensor, through OpenCV.
 
-Reads capture frames from `source` (a device index such as 0, a device path such as "/dev/video2", or a video
-file), crops and downsamples them as the sensor description says, and publishes `/tactile/<camera_id>/image`
-(mono8, sensor-data QoS) stamped with the time the frame was grabbed.
+Reads capture frames from `source` (a device index such as 0, a device path such as "/dev/video2", a video
+file, or an OpenCV image sequence such as "img_%04d.png"), crops and downsamples them as the sensor description
+says, and publishes `/tactile/<camera_id>/image` (mono8, sensor-data QoS) stamped with the time the frame was
+grabbed.
 
 A source that cannot be opened or stops delivering is retried every `reopen_period_s` while the node keeps
-running, so a camera that is unplugged and plugged back in recovers by itself. A video file that ends is
-replayed from the start when `loop` is true; with `loop` false the node says once that the file ended and
-publishes nothing more, but keeps running (as sim_camera_node does at the end of its scene), so that a launch
-file does not take the end of a recording for a failure. Frames of the wrong size are dropped with an error naming
-the camera and the expected size.
+running, so a camera that is unplugged and plugged back in recovers by itself. A video file (or image sequence)
+that ends is replayed from the start when `loop` is true; with `loop` false the node says once that the file
+ended and publishes nothing more, but keeps running (as sim_camera_node does at the end of its scene), so that a
+launch file does not take the end of a recording for a failure. Frames of the wrong size are dropped with an error
+naming the camera and the expected size.
 
 Stamps (not tried on camera hardware): a device is opened with a buffer of one frame (CAP_PROP_BUFFERSIZE;
 OpenCV's V4L2 backend keeps 4 by default, so a node that fell behind would get frames up to 4 periods older than
@@ -35,12 +36,14 @@ from tactile_description.imaging import FrameError, crop_and_downsample
 
 
 def is_video_file(source: int | str) -> bool:
-    return isinstance(source, str) and Path(source).is_file()
+    """Whether `source` is read like a file (it ends, is rewound, keeps no frame buffer): a video file, or an
+    OpenCV image sequence (a printf pattern such as "img_%04d.png", which names no file itself)."""
+    return isinstance(source, str) and (Path(source).is_file() or "%" in source)
 
 
 def open_source(source: int | str) -> cv2.VideoCapture:
-    """A VideoCapture for a device index, a device path or a video file; a device keeps one frame (module
-    docstring)."""
+    """A VideoCapture for a device index, a device path, a video file or an image sequence; a device keeps one frame
+    (module docstring)."""
     capture = cv2.VideoCapture(source)
     if capture.isOpened() and not is_video_file(source):
         capture.set(cv2.CAP_PROP_BUFFERSIZE, 1)

@@ -56,6 +56,13 @@ def msg_to_array(msg: Image, camera_id: str) -> np.ndarray:
     return pixels[:, :, ::-1] if msg.encoding == "rgb8" else pixels  # always hand out BGR, OpenCV's order
 
 
+def is_malformed_bundle(camera_ids: Sequence[str], images: Sequence[Image]) -> bool:
+    """Whether a bundle has another number of camera ids than images: which image is whose cannot be told, so the
+    bundle is skipped, neither estimated nor counted towards the reference frames (frame_from_images reports it as
+    "malformed bundle" and gives no usable image)."""
+    return len(camera_ids) != len(images)
+
+
 def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor_camera_ids: Sequence[str],
                       image_shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str]]]:
     """One bundle's image messages as a model frame, in the sensor's camera order.
@@ -63,11 +70,11 @@ def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor
     Returns the (C, H, W) uint8 frame (black where a camera gave nothing usable), camera_ok (C,) and, for each
     image that could not be used, (reason, detail): an unknown camera, a camera's second image, an unreadable
     message, a wrong size. A bundle with another number of camera ids than images (a malformed message: which image
-    is whose cannot be told) gives no usable image and that one problem.
+    is whose cannot be told, `is_malformed_bundle`) gives no usable image and that one problem: skip it.
     """
     frame = np.zeros((len(sensor_camera_ids), *image_shape), np.uint8)
     camera_ok = np.zeros(len(sensor_camera_ids), bool)
-    if len(camera_ids) != len(images):
+    if is_malformed_bundle(camera_ids, images):
         return frame, camera_ok, [("malformed bundle", f"{len(camera_ids)} camera ids {list(camera_ids)} for "
                                    f"{len(images)} image(s); the bundle is skipped")]
     problems = []

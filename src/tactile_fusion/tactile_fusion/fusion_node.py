@@ -38,8 +38,9 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
-from tactile_conversions.images import frame_from_images
+from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.node_main import run_node
+from tactile_conversions.parameters import positive_float
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components, load_sensor
@@ -68,10 +69,10 @@ class FusionNode(Node):
         threads = int(self.declare_parameter("threads", 1).value)
         reference_bundles = int(self.declare_parameter("reference_bundles", REFERENCE_BUNDLES).value)
         self.publish_markers = bool(self.declare_parameter("publish_markers", True).value)
-        markers_rate_hz = float(self.declare_parameter("markers_rate_hz", MARKERS_RATE_HZ).value)
-        if not markers_rate_hz > 0:
-            raise ValueError(f"tactile_fusion: markers_rate_hz must be > 0, got {markers_rate_hz} (to publish no "
-                             "markers, set publish_markers false)")
+        try:
+            markers_rate_hz = positive_float(self, "markers_rate_hz", MARKERS_RATE_HZ)
+        except ValueError as exc:
+            raise ValueError(f"{exc} (to publish no markers, set publish_markers false)") from exc
         self.markers_period_s = 1.0 / markers_rate_hz
         self.last_markers_s = -float("inf")
         self.sensor = load_sensor(sensor_config or None)
@@ -136,6 +137,8 @@ class FusionNode(Node):
                 f"bundle {bundle.sequence}: " + "; ".join(f"{reason} ({detail})" for reason, detail in problems)
                 + f" ({self.bundles_with_problems} bundle(s) with unusable images since start)",
                 throttle_duration_sec=5.0)
+        if is_malformed_bundle(bundle.camera_ids, bundle.images):
+            return  # neither estimated nor counted towards the reference frames
         try:
             result = self.live.add(images, camera_ok)
         except (InputError, FloatingPointError) as exc:

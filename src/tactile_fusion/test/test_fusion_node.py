@@ -108,3 +108,34 @@ def test_a_malformed_bundle_is_skipped_and_the_node_goes_on(fusion, press_frames
     assert "bundle 2: malformed bundle (4 camera ids ['cam0', 'cam1', 'cam2', 'cam3'] for 3 image(s); the bundle is " \
         "skipped)" in capfd.readouterr().err
     assert list(estimates[0].missing_camera_ids) == []
+
+
+def test_a_malformed_bundle_does_not_count_towards_the_reference(fusion, press_frames):
+    node, estimates = fusion
+    node.on_bundle(bundle(press_frames[0], 0))
+    malformed = bundle(press_frames[1], 1)
+    malformed.images = malformed.images[:3]
+    node.on_bundle(malformed)
+    assert node.live.reference.images is None and node.live.reference.frames_seen == 1  # still one of 2 to come
+    node.on_bundle(bundle(press_frames[1], 2))
+    node.on_bundle(bundle(press_frames[2], 3))
+    assert node.live.reference.images is not None
+    assert spin_until(node, lambda: len(estimates) == 1)
+
+
+@pytest.mark.parametrize(("value", "accepted"), [("5", 5.0), ("2.5", 2.5), ("inf", None), ("0", None),
+                                                 ("nan", None), ("fast", None)])
+def test_markers_rate_hz_takes_integers_and_refuses_what_is_not_a_finite_positive_rate(monkeypatch, value, accepted):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 60) % 80))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    rclpy.init(args=["--ros-args", "-p", f"markers_rate_hz:={value}"])
+    try:
+        if accepted is None:
+            with pytest.raises(ValueError, match="parameter markers_rate_hz must be a"):
+                FusionNode()
+        else:
+            node = FusionNode()
+            assert node.markers_period_s == pytest.approx(1.0 / accepted)
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
