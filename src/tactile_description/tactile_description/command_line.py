@@ -1,5 +1,6 @@
 """What every command line of the stack does alike (no ROS import)."""
 
+import argparse
 import functools
 import os
 import select
@@ -18,6 +19,22 @@ def error_exit(program: str, error: BaseException | str) -> int:
     joined); INPUT_ERROR_EXIT, for `main` to return."""
     print(f"{program}: error: {' '.join(str(error).split())}", file=sys.stderr)
     return INPUT_ERROR_EXIT
+
+
+def whole_number_argument(minimum: int, unit: str, why: str = "", maximum: int | None = None):
+    """An argparse type: a whole number of `unit` from `minimum` (to `maximum`, if given); `why`: the reason for the
+    minimum, if it is not plain."""
+    bound = f">= {minimum}" if maximum is None else f"from {minimum} to {maximum}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum or (maximum is not None and value > maximum):
+            raise argparse.ArgumentTypeError(f"must be a whole number of {unit} {bound}{why}, got {text!r}")
+        return value
+    return parse
 
 
 def stops_quietly_on_closed_pipe(main: Callable[..., int]) -> Callable[..., int]:

@@ -1,5 +1,6 @@
 """A command line whose reader goes away stops quietly, in a real process with a real pipe."""
 
+import argparse
 import os
 import subprocess
 import sys
@@ -7,7 +8,12 @@ import textwrap
 
 import pytest
 
-from tactile_description.command_line import CLOSED_PIPE_EXIT, error_exit, stops_quietly_on_closed_pipe
+from tactile_description.command_line import (
+    CLOSED_PIPE_EXIT,
+    error_exit,
+    stops_quietly_on_closed_pipe,
+    whole_number_argument,
+)
 
 PRINTS_A_LINE = textwrap.dedent("""
     import sys
@@ -58,3 +64,13 @@ def test_a_broken_pipe_to_anything_but_stdout_is_raised():
 def test_an_error_is_reported_on_one_line_with_status_2(capsys):
     assert error_exit("tactile-x run", ValueError("bad.yaml: while parsing\n  in line 3\n   expected ':'")) == 2
     assert capsys.readouterr().err == "tactile-x run: error: bad.yaml: while parsing in line 3 expected ':'\n"
+
+
+def test_a_whole_number_argument_names_its_unit_and_bounds():
+    frames = whole_number_argument(1, "frames", maximum=10)
+    assert frames("10") == 10
+    for text in ("0", "11", "2.5", "many"):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"whole number of frames from 1 to 10, got '{text}'"):
+            frames(text)
+    with pytest.raises(argparse.ArgumentTypeError, match=r"of draws >= 0 \(why\), got '-1'"):
+        whole_number_argument(0, "draws", " (why)")("-1")

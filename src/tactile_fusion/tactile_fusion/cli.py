@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, left_out_components, load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe, whole_number_argument
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ModelFileError,
@@ -96,19 +96,6 @@ def _fractions(text: str) -> list[float]:
         return checked_fractions(text.split(","))
     except ValueError as exc:
         raise SettingsError(f"--fractions must be comma-separated numbers in (0, 1], got {text!r}") from exc
-
-
-def _whole_number(minimum: int, unit: str, why: str = ""):
-    """An argparse type: a whole number of `unit` >= `minimum` (`why`: the reason for that minimum, if not plain)."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = minimum - 1
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be a whole number of {unit} >= {minimum}{why}, got {text!r}")
-        return value
-    return parse
 
 
 def _train_config(args) -> TrainConfig:
@@ -314,7 +301,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--scene", default="paper_grid", help="scene name or YAML file to simulate (default "
                       "%(default)s)")
     data.add_argument("--dataset", help="train on a dataset written by `tactile-sim generate` instead")
-    parser.add_argument("--frames", type=_whole_number(3, "frames", " (a train/val/test split needs 3)"),
+    parser.add_argument("--frames", type=whole_number_argument(3, "frames", " (a train/val/test split needs 3)"),
                         help="use only the first N frames of the scene or dataset")
     parser.add_argument("--epochs", type=int, default=train.max_epochs,
                         help="at most this many end-to-end epochs (default %(default)s, sized for the default scene's "
@@ -323,7 +310,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="then at most this many epochs of the head alone on cached conv features (default "
                         "%(default)s, sized like --epochs; 0: no head phase, no imperfect copy and one least-squares "
                         "fit, whatever --head-cycles says)")
-    parser.add_argument("--head-extra-draws", type=_whole_number(0, "draws"),
+    parser.add_argument("--head-extra-draws", type=whole_number_argument(0, "draws"),
                         help="the head phase and the least-squares fits also learn from this many further draws of "
                         "the scene (its presses drawn again from seed + 1, ...: other positions, depths and noise; "
                         "default 1 for a scene, 0 for a dataset, which cannot be drawn again)")
@@ -378,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(p, with_model: bool, threads: int = 1):
         p.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
-        p.add_argument("--threads", type=_whole_number(1, "threads"), default=threads,
+        p.add_argument("--threads", type=whole_number_argument(1, "threads"), default=threads,
                        help="CPU threads (default %(default)s)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         if with_model:
@@ -403,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
                       "--split does not apply)")
     p.add_argument("--split", choices=["all", "test"],
                    help="with --scene only: every frame (the default), or its held-out 20 %% drawn from its seed")
-    p.add_argument("--frames", type=_whole_number(1, "frames"),
+    p.add_argument("--frames", type=whole_number_argument(1, "frames"),
                    help="only the first N frames of each data set: of the test split, the scene (or its --split), "
                    "the dataset and each hard case")
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
@@ -437,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="milliseconds per frame of every backend and precision, batch of one, next to "
                        "its test-split accuracy")
     common(p, True)
-    p.add_argument("--runs", type=_whole_number(1, "runs"), default=300,
+    p.add_argument("--runs", type=whole_number_argument(1, "runs"), default=300,
                    help="timed runs per backend (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench)

@@ -16,7 +16,7 @@ import json
 import sys
 
 from tactile_description import SensorConfigError, load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe, whole_number_argument
 from tactile_sim.contact import ground_truth_model, press_contact, press_report
 from tactile_sim.dataset import DatasetError, write_dataset
 from tactile_sim.effects import SceneError
@@ -25,15 +25,10 @@ from tactile_sim.scene import MAX_FRAMES, load_scene
 MODELS = ("analytic", "numerical")
 
 
-def _positive_int(text: str) -> int:
-    """A count on the command line: 1 to MAX_FRAMES (frames, previews, runs)."""
-    value = int(text)
-    if not 1 <= value <= MAX_FRAMES:
-        raise argparse.ArgumentTypeError(f"must be an integer from 1 to {MAX_FRAMES}, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
+    # Counts on the command line: 1 to MAX_FRAMES.
+    frames, previews, runs = (whole_number_argument(1, unit, maximum=MAX_FRAMES) for unit in ("frames", "previews",
+                                                                                                "runs"))
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
     parser = argparse.ArgumentParser(prog="tactile-sim", description=__doc__.split("\n\n")[0],
@@ -55,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     generate = commands.add_parser("generate", parents=[common], help="write a data set of a scene")
     generate.add_argument("--scene", default="paper_grid", help="scene file or installed scene name")
     generate.add_argument("--out", required=True, help="output directory (must be new or empty)")
-    generate.add_argument("--frames", type=_positive_int, help="only the first N frames")
+    generate.add_argument("--frames", type=frames, help="only the first N frames")
     generate.add_argument("--model", choices=MODELS, default="analytic", help="ground-truth model")
     generate.add_argument("--overwrite", action="store_true", help="replace a data set already in --out")
     generate.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -63,14 +58,14 @@ def build_parser() -> argparse.ArgumentParser:
     render = commands.add_parser("render", parents=[common], help="PNG previews of a scene")
     render.add_argument("--scene", default="paper_grid", help="scene file or installed scene name")
     render.add_argument("--out", required=True, help="output directory")
-    render.add_argument("--frames", type=_positive_int, help="only the first N frames of the scene")
-    render.add_argument("--count", type=_positive_int, default=8, help="previews, spread evenly (default 8)")
+    render.add_argument("--frames", type=frames, help="only the first N frames of the scene")
+    render.add_argument("--count", type=previews, default=8, help="previews, spread evenly (default 8)")
 
     bench = commands.add_parser("bench", parents=[common], help="speed of the simulator")
     bench.add_argument("--scene", default="paper_grid", help="scene whose presses are timed (default paper_grid)")
-    bench.add_argument("--frames", type=_positive_int, help="time only the first N press frames (default all)")
-    bench.add_argument("--runs", type=_positive_int, default=5, help="runs per measurement; medians (default 5)")
-    bench.add_argument("--effect-frames", type=_positive_int, default=300, help="frames per effect measurement")
+    bench.add_argument("--frames", type=frames, help="time only the first N press frames (default all)")
+    bench.add_argument("--runs", type=runs, default=5, help="runs per measurement; medians (default 5)")
+    bench.add_argument("--effect-frames", type=frames, default=300, help="frames per effect measurement")
     bench.add_argument("--json", action="store_true", help="print one JSON object")
     return parser
 
