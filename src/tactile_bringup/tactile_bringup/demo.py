@@ -21,11 +21,10 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes
+from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes, stopped_by_signal
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
@@ -149,8 +148,9 @@ def main(argv: list[str] | None = None) -> int:
                 if monitor.last:
                     line += f"  total Fz estimated {monitor.last[0]:6.3f} N, true {monitor.last[1]:6.3f} N"
                 print(line, flush=True)
-    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM (rclpy shuts the context down)
-        pass
+    except BaseException as exc:  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
+        if not stopped_by_signal(exc):
+            raise
     finally:
         codes = stop_nodes(processes)
         summary = monitor.summary(time.monotonic() - started)

@@ -27,11 +27,10 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes
+from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes, stopped_by_signal
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
@@ -150,8 +149,9 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
                   file=sys.stderr)
-    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM (rclpy shuts the context down)
-        pass
+    except BaseException as exc:  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
+        if not stopped_by_signal(exc):
+            raise
     finally:
         codes = stop_nodes(processes)
         probe.destroy_node()

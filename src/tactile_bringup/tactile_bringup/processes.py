@@ -87,6 +87,15 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     return others + cameras, processes
 
 
+def stopped_by_signal(error: BaseException) -> bool:
+    """Whether `error` is how a Ctrl-C or SIGTERM ended a tool's spinning: KeyboardInterrupt, rclpy's
+    ExternalShutdownException, or any error raised once the signal had shut rclpy's context down (rclpy's handler
+    does that at once, so an rcl call already under way, such as count_publishers, then fails with "context is
+    invalid" instead)."""
+    return isinstance(error, (KeyboardInterrupt, ExternalShutdownException)) or (isinstance(error, Exception)
+                                                                                 and not rclpy.ok())
+
+
 def start_tool_graph(program: str, specs: list[NodeSpec], log_dir: Path, probe: Node
                      ) -> tuple[list[NodeSpec], list[subprocess.Popen]] | int:
     """`start_graph` for a command-line tool (tactile-demo, tactile-latency): the specs and processes, or the tool's
@@ -95,7 +104,9 @@ def start_tool_graph(program: str, specs: list[NodeSpec], log_dir: Path, probe: 
     node is left running (start_graph stops those it started)."""
     try:
         return start_graph(specs, log_dir, probe)
-    except (GraphStartError, KeyboardInterrupt, ExternalShutdownException) as exc:
+    except BaseException as exc:
+        if not (isinstance(exc, GraphStartError) or stopped_by_signal(exc)):
+            raise
         probe.destroy_node()
         rclpy.try_shutdown()
         if isinstance(exc, GraphStartError):
