@@ -22,6 +22,7 @@ from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.bundle_node import BundleNode
+from tactile_fusion.fusion_node import FusionNode
 from tactile_msgs.msg import ImageBundle
 
 CONFIG = str(default_sensor_path())
@@ -74,15 +75,18 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (BundleNode, {"min_period_s": ".nan"}, "parameter min_period_s must be a finite number >= 0, got nan"),
     (BundleNode, {"camera_timeout_s": ".nan"}, "parameter camera_timeout_s must be a finite number > 0, got nan"),
     (BundleNode, {"camera_timeout_s": ".inf"}, "parameter camera_timeout_s must be a finite number > 0, got inf"),
-    (BundleNode, {"max_spread_s": "fast"}, "parameter max_spread_s must be a number > 0, got 'fast'"),
-    (BundleNode, {"queue_size": "0"}, "parameter queue_size must be >= 1, got 0"),
+    (BundleNode, {"max_spread_s": "fast"}, "parameter max_spread_s must be a finite number > 0, got 'fast'"),
+    (BundleNode, {"queue_size": "0"}, "parameter queue_size must be a whole number >= 1, got 0"),
+    (BundleNode, {"queue_size": "10.0"}, "parameter queue_size must be a whole number >= 1, got 10.0"),
     (CameraNode, {"rate_hz": ".nan"}, "tactile_camera: parameter rate_hz must be a finite number > 0, got nan"),
-    (CameraNode, {"reopen_period_s": "0"}, "parameter reopen_period_s must be a finite number > 0, got 0.0"),
+    (CameraNode, {"reopen_period_s": "0"}, "parameter reopen_period_s must be a finite number > 0, got 0"),
     (CameraNode, {"source": "-1"}, "parameter source must be a device index (an integer >= 0), a device path or a "
                                    "video file, got -1"),
     (CameraNode, {"source": "''"}, "parameter source must be a device index"),
     (SimCameraNode, {"stamp_jitter_s": ".nan"}, "parameter stamp_jitter_s must be a finite number >= 0, got nan"),
     (SimCameraNode, {"rate_hz": ".nan"}, "tactile_sim_cameras: parameter rate_hz must be a finite number > 0"),
+    (FusionNode, {"threads": "0"}, "tactile_fusion: parameter threads must be a whole number >= 1, got 0"),
+    (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number >= 1, got 2.5"),
 ])
 def test_bad_parameter_values_are_refused_naming_the_parameter(ros_args_node, node_class, parameters, message):
     with pytest.raises(ValueError) as refused:

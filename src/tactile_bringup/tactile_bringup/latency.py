@@ -38,7 +38,7 @@ from tactile_description.command_line import error_exit, stops_quietly_on_closed
 from tactile_fusion.artifacts import ModelFileError
 from tactile_fusion.bench import call_times_s, synthetic_frame
 from tactile_fusion.fusion_node import MARKERS_RATE_HZ
-from tactile_fusion.inference import BACKENDS, PRECISIONS, load_predictor
+from tactile_fusion.inference import BACKENDS, PRECISIONS, check_backend, load_predictor
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 
 #: The fusion node's intra-op threads here, in the graph and in the baseline.
@@ -120,8 +120,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.windows < 1 or args.window <= 0 or args.settle < 0 or not args.markers_rate > 0:
         parser.error("--windows must be >= 1, --window > 0, --settle >= 0 and --markers-rate > 0")
-    if args.precision not in BACKENDS[args.backend]:
-        parser.error(f"backend {args.backend} supports precisions {list(BACKENDS[args.backend])}")
+    try:
+        check_backend(args.backend, args.precision)
+    except ValueError as exc:
+        parser.error(str(exc))
 
     sensor_config = args.sensor or str(default_sensor_path())
     try:

@@ -33,6 +33,7 @@ from tactile_conversions.parameters import DYNAMIC, positive_float
 from tactile_conversions.topics import camera_topic
 from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
+from tactile_description.value_checks import is_whole_number
 
 
 def is_video_file(source: int | str) -> bool:
@@ -77,8 +78,7 @@ class CameraNode(Node):
         value = self.declare_parameter("source", "0", DYNAMIC).value
         if isinstance(value, str) and value.isdigit():
             return int(value)
-        device_index = isinstance(value, int) and not isinstance(value, bool) and value >= 0
-        if device_index or (isinstance(value, str) and value):
+        if is_whole_number(value, 0) or (isinstance(value, str) and value):
             return value
         raise ValueError(f"{self.get_name()}: parameter source must be a device index (an integer >= 0), a device "
                          f"path or a video file, got {value!r}")

@@ -1,17 +1,18 @@
 """Node parameters that take what a command line gives them, checked once, with errors naming the parameter.
 
 rcl reads `-p rate_hz:=30` as an integer and `-p source:=2` as one too; a parameter declared with a float or
-string default refuses them (InvalidParameterTypeException) and the node dies at start-up. Declared with
-`DYNAMIC`, a parameter takes any type, and the node converts it itself. A check written `x <= 0` lets NaN through
+string default refuses them (InvalidParameterTypeException) and the node dies at start-up with a traceback, as a
+parameter declared with an integer default does with `-p threads:=2.0`. Declared with `DYNAMIC`, a parameter takes
+any type, and the node checks and converts it itself. A check written `x <= 0` lets NaN through
 (every comparison with NaN is false): `positive_float` refuses NaN and infinities.
 """
 
 from __future__ import annotations
 
-import math
-
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
+
+from tactile_description.value_checks import is_number, is_whole_number
 
 #: The descriptor of a parameter whose type the node checks and converts itself.
 DYNAMIC = ParameterDescriptor(dynamic_typing=True)
@@ -25,9 +26,17 @@ def positive_float(node: Node, name: str, default: float, *, allow_zero: bool = 
     """
     value = node.declare_parameter(name, default, DYNAMIC).value
     bound = ">= 0" if allow_zero else "> 0"
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{node.get_name()}: parameter {name} must be a number {bound}, got {value!r}")
-    value = float(value)
-    if not (math.isfinite(value) and (value >= 0 if allow_zero else value > 0)):
-        raise ValueError(f"{node.get_name()}: parameter {name} must be a finite number {bound}, got {value}")
+    if not (is_number(value) and (value >= 0 if allow_zero else value > 0)):
+        raise ValueError(f"{node.get_name()}: parameter {name} must be a finite number {bound}, got {value!r}")
+    return float(value)
+
+
+def whole_number(node: Node, name: str, default: int, low: int = 1) -> int:
+    """Declare parameter `name` and return its value: a whole number >= `low`.
+
+    Anything else (a float, even 2.0; a string; a bool) raises ValueError naming the node and the parameter.
+    """
+    value = node.declare_parameter(name, default, DYNAMIC).value
+    if not is_whole_number(value, low):
+        raise ValueError(f"{node.get_name()}: parameter {name} must be a whole number >= {low}, got {value!r}")
     return value

@@ -8,10 +8,7 @@ from __future__ import annotations
 
 import math
 
-
-def is_number(value) -> bool:
-    """A finite int or float (bool is not a number here, although Python says it is an int)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+from tactile_description.value_checks import is_number, is_whole_number
 
 
 class YamlFields:
@@ -50,7 +47,7 @@ class YamlFields:
 
     def count(self, key: str, default=None, low: int = 1) -> int:
         value = self.raw(key, default, required=default is None)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        if not is_whole_number(value, low):
             raise self.error(f"{self.where}.{key} must be an integer >= {low}, got {value!r}")
         return value
 

@@ -26,11 +26,12 @@ Time is whatever unit the caller uses consistently (seconds in the nodes).
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Generic, TypeVar
+
+from tactile_description.value_checks import is_number, is_whole_number
 
 Item = TypeVar("Item")
 
@@ -109,12 +110,12 @@ class ApproximateTimeSync(Generic[Item]):
         jump back by more than `restart_jump_s` (module docstring; camera_sync_settings gives two frame periods)."""
         if len(stream_ids) < 1 or len(set(stream_ids)) != len(stream_ids):
             raise ValueError(f"stream ids must be unique and at least one, got {list(stream_ids)}")
-        if queue_size < 1:
-            raise ValueError(f"queue_size must be >= 1, got {queue_size}")
+        if not is_whole_number(queue_size):
+            raise ValueError(f"queue_size must be a whole number >= 1, got {queue_size!r}")
         for name, value in (("max_spread_s", max_spread_s), ("restart_jump_s", restart_jump_s)):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value}")
-        if not (math.isfinite(min_period_s) and min_period_s >= 0):
+            if not (is_number(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if not (is_number(min_period_s) and min_period_s >= 0):
             raise ValueError(f"min_period_s must be a finite number >= 0, got {min_period_s}")
         self.stream_ids = tuple(stream_ids)
         self.queue_size = queue_size

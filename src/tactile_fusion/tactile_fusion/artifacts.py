@@ -21,6 +21,7 @@ import torch
 
 from tactile_description import FORCE_COMPONENTS, SensorDescription
 from tactile_description.json_file import read_json
+from tactile_description.value_checks import is_whole_number
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
 
 MODEL_JSON = "model.json"
@@ -119,7 +120,7 @@ def _description_problem(description: dict) -> str:
         return f"camera_ids must be a non-empty list of camera ids, got {cameras!r}"
     for key in ("rows", "cols"):
         value = description.get(key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        if not is_whole_number(value):
             return f"{key} must be a whole number >= 1, got {value!r}"
     if not (isinstance(scale, list) and len(scale) == 3):
         return f"force_scale_n must be a list of 3 numbers, got {scale!r}"

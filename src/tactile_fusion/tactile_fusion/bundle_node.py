@@ -25,7 +25,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import positive_float
+from tactile_conversions.parameters import positive_float, whole_number
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_description import load_sensor
@@ -46,12 +46,10 @@ class BundleNode(Node):
         self.sensor = load_sensor(sensor_config or None)
         defaults = camera_sync_settings(self.sensor.frame_rate_hz)
         self.max_spread_s = positive_float(self, "max_spread_s", defaults["max_spread_s"])
-        self.queue_size = int(self.declare_parameter("queue_size", defaults["queue_size"]).value)
+        self.queue_size = whole_number(self, "queue_size", defaults["queue_size"])
         self.min_period_s = positive_float(self, "min_period_s", defaults["min_period_s"], allow_zero=True)
         self.camera_timeout_s = positive_float(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
         self.restart_jump_s = defaults["restart_jump_s"]
-        if self.queue_size < 1:
-            raise ValueError(f"{self.get_name()}: parameter queue_size must be >= 1, got {self.queue_size}")
         self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
         self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
         self.live_cameras: tuple[str, ...] = ()

@@ -38,7 +38,7 @@ from tactile_fusion.artifacts import (
     threshold_text,
 )
 from tactile_fusion.data import DatasetMismatchError, FrameDataError, load_dataset_frames
-from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, load_predictor
+from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, check_backend, load_predictor
 from tactile_fusion.metrics import (
     CONTACT_LEVEL_N,
     contact_level_argument,
@@ -181,9 +181,7 @@ def cmd_eval(args) -> int:
     from tactile_fusion.evaluation import evaluate
     from tactile_fusion.plots import grid_bin_size_mm, plot_fz_maps
 
-    if args.precision not in BACKENDS[args.backend]:
-        raise SettingsError(f"--precision {args.precision}: the {args.backend} backend runs "
-                            f"{', '.join(BACKENDS[args.backend])}; choose one of those or another --backend")
+    _setting(check_backend, args.backend, args.precision)
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)

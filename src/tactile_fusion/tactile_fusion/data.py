@@ -13,6 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tactile_description import SensorDescription
+from tactile_description.value_checks import is_whole_number
 from tactile_sim import DatasetError, Scene, Simulator, open_dataset
 
 #: Train / validation / test fractions (the paper's split).
@@ -245,7 +246,7 @@ class SceneDraws:
     progress: bool = False
 
     def __post_init__(self):
-        if isinstance(self.draws, bool) or not isinstance(self.draws, int) or self.draws < 0:
+        if not is_whole_number(self.draws, 0):
             raise ValueError(f"SceneDraws: draws must be an integer >= 0, got {self.draws!r}")
         if self.draws and self.scene is None:
             raise ValueError("SceneDraws: further draws need a scene to draw from")

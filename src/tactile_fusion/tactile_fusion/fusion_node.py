@@ -40,7 +40,7 @@ from visualization_msgs.msg import MarkerArray
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import positive_float
+from tactile_conversions.parameters import positive_float, whole_number
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components, load_sensor
@@ -66,8 +66,8 @@ class FusionNode(Node):
         model_dir = self.declare_parameter("model_dir", "").value
         backend = self.declare_parameter("backend", "onnxruntime").value
         precision = self.declare_parameter("precision", "fp32").value
-        threads = int(self.declare_parameter("threads", 1).value)
-        reference_bundles = int(self.declare_parameter("reference_bundles", REFERENCE_BUNDLES).value)
+        threads = whole_number(self, "threads", 1)
+        reference_bundles = whole_number(self, "reference_bundles", REFERENCE_BUNDLES)
         self.publish_markers = bool(self.declare_parameter("publish_markers", True).value)
         try:
             markers_rate_hz = positive_float(self, "markers_rate_hz", MARKERS_RATE_HZ)

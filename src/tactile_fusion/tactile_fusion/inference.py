@@ -139,8 +139,7 @@ class TorchPredictor(ForcePredictor):
     def __init__(self, model: ForceFusionNet, precision: str = "fp32", threads: int | None = DEFAULT_THREADS):
         super().__init__(model.camera_ids, model.rows, model.cols, model.config.image_size, precision,
                          model.components, model.fz_threshold_n)
-        if precision not in BACKENDS["torch"]:
-            raise ValueError(f"torch backend: precision must be one of {BACKENDS['torch']}, got {precision!r}")
+        check_backend(self.backend, precision)
         self.model = model.eval() if precision == "fp32" else copy_to_half(model)
         self.dtype = torch.float32 if precision == "fp32" else torch.float16
         if threads is not None:
@@ -200,6 +199,15 @@ def onnx_session(graph: str | Path | bytes, threads: int | None, spinning: bool 
     return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
 
 
+def check_backend(backend: str, precision: str) -> None:
+    """Raise ValueError unless `backend` is one of BACKENDS and runs `precision`; the message says what to choose."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
+    if precision not in BACKENDS[backend]:
+        raise ValueError(f"the {backend} backend runs {', '.join(BACKENDS[backend])}, not {precision}; choose one of "
+                         "those or another backend")
+
+
 def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxruntime", precision: str = "fp32",
                    threads: int | None = DEFAULT_THREADS) -> ForcePredictor:
     """A predictor for a model directory (default: the shipped model).
@@ -208,10 +216,7 @@ def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxrunt
     one frame is too small to gain from more (docs/learning.md has the measurements), and the sensor's
     other nodes need the remaining cores.
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
-    if precision not in BACKENDS[backend]:
-        raise ValueError(f"backend {backend} supports precisions {list(BACKENDS[backend])}, not {precision!r}")
+    check_backend(backend, precision)
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
     description = read_model_json(model_dir)
     if backend == "torch":

@@ -17,7 +17,6 @@ newtons. A trained model then soft-thresholds Fz (`fz_threshold_n`, see `to_newt
 
 from __future__ import annotations
 
-import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -25,6 +24,7 @@ import torch
 from torch import nn
 
 from tactile_description import FORCE_COMPONENTS
+from tactile_description.value_checks import is_number, is_whole_number
 
 #: Grey levels of a uint8 image: difference images are divided by this so they lie in about [-1, 1].
 GREY_LEVELS = 255.0
@@ -52,9 +52,9 @@ class ModelConfig:
 
     def __post_init__(self):
         for name in ("image_size", "hidden_features", "camera_features"):
-            if not _is_count(getattr(self, name)):
+            if not is_whole_number(getattr(self, name)):
                 raise ValueError(f"ModelConfig: {name} must be a whole number >= 1, got {getattr(self, name)!r}")
-        if not self.conv_channels or not all(_is_count(c) for c in self.conv_channels):
+        if not self.conv_channels or not all(is_whole_number(c) for c in self.conv_channels):
             raise ValueError(f"ModelConfig: conv_channels must be one or more whole numbers >= 1, got "
                              f"{self.conv_channels!r}")
         pooled = self.image_size // 2 ** len(self.conv_channels)
@@ -63,7 +63,7 @@ class ModelConfig:
                              f"{len(self.conv_channels)} (one 2x pooling per conv block); use fewer conv_channels")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"ModelConfig: dropout must be in [0, 1), got {self.dropout}")
-        if self.fusion_rank is not None and not _is_count(self.fusion_rank):
+        if self.fusion_rank is not None and not is_whole_number(self.fusion_rank):
             raise ValueError(f"ModelConfig: fusion_rank must be >= 1 or None, got {self.fusion_rank}")
         if self.feature_activation not in FEATURE_ACTIVATIONS:
             raise ValueError(f"ModelConfig: feature_activation must be one of {list(FEATURE_ACTIVATIONS)}, got "
@@ -86,11 +86,6 @@ class ModelConfig:
         d = {"feature_activation": "sigmoid", **d}
         d["conv_channels"] = tuple(d["conv_channels"])
         return cls(**d)
-
-
-def _is_count(value) -> bool:
-    """Whether `value` is a whole number >= 1 (not a bool, which would be 1 by accident)."""
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= 1
 
 
 class ConvBlock(nn.Module):
@@ -328,11 +323,9 @@ def checked_threshold(fz_threshold_n) -> float | None:
     if fz_threshold_n is None:
         return None
     # A bool or a string is a mistake in model.json, not a number of newtons (float(True) would be 1 N).
-    value = float(fz_threshold_n) if isinstance(fz_threshold_n, (int, float)) and \
-        not isinstance(fz_threshold_n, bool) else float("nan")
-    if not (np.isfinite(value) and value >= 0.0):
+    if not (is_number(fz_threshold_n) and fz_threshold_n >= 0.0):
         raise ValueError(f"fz_threshold_n must be None or a finite number >= 0 (newtons), got {fz_threshold_n!r}")
-    return value
+    return float(fz_threshold_n)
 
 
 def checked_components(components) -> tuple[str, ...]:

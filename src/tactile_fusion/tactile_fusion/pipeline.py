@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from tactile_description import SensorDescription
+from tactile_description.value_checks import is_whole_number
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     MODEL_JSON,
@@ -329,7 +330,7 @@ def _held_out_picks(record: Path, data: dict, data_name: str, source: FrameSet |
     found = {"scene": source.scene if dataset else source.name, "seed": source.seed}
     differ = [f"{key} {data[key]!r} (now {found[key]!r})" for key in found if data.get(key, found[key]) != found[key]]
     trained = data.get("frames", len(source))
-    if not isinstance(trained, int) or trained > len(source):
+    if not is_whole_number(trained) or trained > len(source):
         differ.append(f"frames {trained!r} (now {len(source)})")
     if not differ:
         picks = first_frames_split(len(source), source.seed, trained)[split]

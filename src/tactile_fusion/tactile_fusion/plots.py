@@ -58,30 +58,18 @@ def grid_bin_size_mm(grid: BinGrid) -> tuple[float, float]:
     return 1e3 * grid.bin_width_m, 1e3 * grid.bin_length_m
 
 
-def recalibration_speedup(full_wall_time_s: float, runs: list[dict]) -> dict:
-    """How much faster than full training recalibration with the largest fraction of the data was (`runs`: the
-    recalibration runs in increasing fraction): {"fraction": that fraction, "factor": full / its wall time}."""
-    largest = runs[-1]
-    return {"fraction": largest["fraction"], "factor": full_wall_time_s / largest["wall_time_s"]}
-
-
-def least_squares_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """(slope, intercept) of the least-squares line through (x, y): y ~ slope x + intercept."""
-    design = np.stack([np.asarray(x, dtype=np.float64), np.ones(len(x))], axis=1)
-    (slope, intercept), *_ = np.linalg.lstsq(design, np.asarray(y, dtype=np.float64), rcond=None)
-    return float(slope), float(intercept)
-
-
 def plot_recalibration(sweep: dict, path: str | Path) -> Path:
-    """Left: test errors against the fraction of data used for recalibration, with least-squares trend lines
-    and the fully trained model's error; right: wall time of full training against recalibration."""
+    """Left: test errors against the fraction of data used for recalibration, with the study's least-squares trend
+    lines and the fully trained model's error; right: wall time of full training against recalibration, titled with
+    the study's speed-up (`sweep`: the report study.recalibration_study writes)."""
     fractions = np.array([run["fraction"] for run in sweep["recalibration"]])
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     for key, label, colour in (("rmse_bin_n", "per-bin Fz RMSE", "tab:blue"),
                                ("rmse_total_n", "total Fz RMSE / 10", "tab:orange")):
         scale = 0.1 if key == "rmse_total_n" else 1.0
         errors = np.array([run["metrics"][key][2] for run in sweep["recalibration"]]) * scale * 1e3
-        slope, intercept = least_squares_line(fractions, errors)
+        trend = sweep["trend_lines"][f"{key}_fz"]
+        slope, intercept = (trend[k] * scale * 1e3 for k in ("slope_n_per_fraction", "intercept_n"))
         ax.plot(fractions * 100, errors, "o", color=colour, label=f"recalibrated: {label}")
         line = np.linspace(fractions.min(), fractions.max(), 50)
         ax.plot(line * 100, slope * line + intercept, "-", color=colour, alpha=0.6,
@@ -100,7 +88,7 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     bx.bar(range(len(names)), times, color=["tab:red"] + ["tab:green"] * len(fractions))
     bx.set_xticks(range(len(names)), names, rotation=60, ha="right", fontsize=7)
     bx.set_ylabel("wall time (s)")
-    speedup = recalibration_speedup(sweep["full_training"]["wall_time_s"], sweep["recalibration"])
+    speedup = sweep["speedup"]
     bx.set_title(f"full training / recalibration ({100 * speedup['fraction']:.0f} % data): {speedup['factor']:.1f}x")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -23,12 +23,26 @@ from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.pipeline import train_model, training_splits
-from tactile_fusion.plots import least_squares_line, plot_recalibration, recalibration_speedup
+from tactile_fusion.plots import plot_recalibration
 from tactile_fusion.recalibration import checked_fractions, recalibration_sweep
 from tactile_fusion.training import TrainConfig
 
 REPORT_JSON = "recalibration.json"
 REPORT_PNG = "recalibration.png"
+
+
+def recalibration_speedup(full_wall_time_s: float, runs: list[dict]) -> dict:
+    """How much faster than full training recalibration with the largest fraction of the data was (`runs`: the
+    recalibration runs in increasing fraction): {"fraction": that fraction, "factor": full / its wall time}."""
+    largest = runs[-1]
+    return {"fraction": largest["fraction"], "factor": full_wall_time_s / largest["wall_time_s"]}
+
+
+def least_squares_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(slope, intercept) of the least-squares line through (x, y): y ~ slope x + intercept."""
+    design = np.stack([np.asarray(x, dtype=np.float64), np.ones(len(x))], axis=1)
+    (slope, intercept), *_ = np.linalg.lstsq(design, np.asarray(y, dtype=np.float64), rcond=None)
+    return float(slope), float(intercept)
 
 
 def camera_to_add(sensor: SensorDescription, added_camera: str | None) -> str:

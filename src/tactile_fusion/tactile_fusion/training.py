@@ -9,7 +9,6 @@ features of the frozen CNN, see recalibration.py) share it.
 from __future__ import annotations
 
 import copy
-import math
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -23,6 +22,7 @@ import torch
 from tqdm import tqdm
 
 from tactile_description import FORCE_COMPONENTS
+from tactile_description.value_checks import is_number, is_whole_number
 from tactile_fusion.data import FrameSet, check_finite_targets, forces_sha256
 from tactile_fusion.fz_threshold import fit_threshold_and_fusion
 from tactile_fusion.least_squares import RIDGES, fit_fusion
@@ -100,15 +100,15 @@ class TrainConfig:
     recalibration_epochs: int = 7  # modular recalibration: epochs of the last layers on cached features
 
     def __post_init__(self):
-        if self.head_epochs < 0:
-            raise ValueError(f"TrainConfig.head_epochs must be >= 0, got {self.head_epochs}")
+        if not is_whole_number(self.head_epochs, 0):
+            raise ValueError(f"TrainConfig.head_epochs must be a whole number >= 0, got {self.head_epochs!r}")
         for name in ("max_epochs", "batch_size", "head_batch_size", "patience", "recalibration_epochs", "head_cycles"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+            if not is_whole_number(getattr(self, name)):
+                raise ValueError(f"TrainConfig.{name} must be a whole number >= 1, got {getattr(self, name)!r}")
         for name in ("learning_rate", "head_learning_rate", "loss_eps"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ValueError(f"TrainConfig.{name} must be a finite number > 0, got {getattr(self, name)}")
-        if not (math.isfinite(self.min_learning_rate) and self.min_learning_rate >= 0):
+            if not (is_number(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"TrainConfig.{name} must be a finite number > 0, got {getattr(self, name)!r}")
+        if not (is_number(self.min_learning_rate) and self.min_learning_rate >= 0):
             raise ValueError(f"TrainConfig.min_learning_rate must be a finite number >= 0, got "
                              f"{self.min_learning_rate}")
         if self.head_dropout is not None and not 0.0 <= self.head_dropout < 1.0:

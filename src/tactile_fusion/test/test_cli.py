@@ -347,7 +347,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize("command, setting, message", [
     ("train", ["--head-dropout", "1.5"], "TrainConfig.head_dropout must be in [0, 1)"),
-    ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be >= 1"),
+    ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be a whole number >= 1"),
     ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
     ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
     ("train", ["--head-misalign-rotation-deg", "50"], "TrainConfig.head_misalign_rotation_deg must be in [0, 45]"),
@@ -355,7 +355,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
      "argument --head-extra-draws: must be a whole number of draws >= 0, got '-1'"),
     ("train", ["--dataset", "data", "--head-extra-draws", "1"],
      "--head-extra-draws 1: a dataset cannot be drawn again"),
-    ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be >= 1"),
+    ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be a whole number >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),
 ])
@@ -410,7 +410,7 @@ def one_camera_sensor(tmp_path) -> Path:
 
 @pytest.mark.parametrize("args, message", [
     ("eval --backend torch --precision int8",
-     "eval: error: --precision int8: the torch backend runs fp32, fp16; choose one of those or another --backend"),
+     "eval: error: the torch backend runs fp32, fp16, not int8; choose one of those or another backend"),
     ("eval --backend torch --threads -1", "eval: error: argument --threads: must be a whole number of threads >= 1"),
     ("train --threads 0 --out OUT", "train: error: argument --threads: must be a whole number of threads >= 1"),
     ("train --frames 2 --out OUT",

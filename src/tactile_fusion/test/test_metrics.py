@@ -13,7 +13,8 @@ from tactile_fusion.metrics import (
     force_metrics,
     metrics_table,
 )
-from tactile_fusion.plots import example_frames, least_squares_line, plot_fz_maps, plot_recalibration
+from tactile_fusion.plots import example_frames, plot_fz_maps, plot_recalibration
+from tactile_fusion.study import least_squares_line
 
 
 def test_rmse_per_bin_and_on_the_total_force_per_component():
@@ -158,5 +159,8 @@ def test_figures_are_written(tmp_path):
     m = force_metrics(true * 0.9, true)
     sweep = {"added_camera": "cam3", "base_cameras": 3,
              "full_training": {"wall_time_s": 70.0, "metrics": m},
-             "recalibration": [{"fraction": f, "wall_time_s": 10.0 * f, "metrics": m} for f in (0.1, 0.5, 1.0)]}
+             "recalibration": [{"fraction": f, "wall_time_s": 10.0 * f, "metrics": m} for f in (0.1, 0.5, 1.0)],
+             "trend_lines": {f"{key}_fz": {"slope_n_per_fraction": -0.001, "intercept_n": m[key][2]}
+                             for key in ("rmse_bin_n", "rmse_total_n")},
+             "speedup": {"fraction": 1.0, "factor": 7.0}}
     assert plot_recalibration(sweep, tmp_path / "recal.png").stat().st_size > 10_000

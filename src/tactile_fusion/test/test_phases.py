@@ -324,7 +324,7 @@ def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_
                                          r"head_noise_sigma 1\.2 \(now 0\.5\);"):
         train_phases(model_for(frames, tiny_config), train, val, replace(config, head_noise_sigma=0.5), tmp_path,
                      resume=True)
-    with pytest.raises(ValueError, match="TrainConfig.head_cycles must be >= 1"):
+    with pytest.raises(ValueError, match="TrainConfig.head_cycles must be a whole number >= 1"):
         TrainConfig(head_cycles=0)
 
 

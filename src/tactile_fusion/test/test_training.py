@@ -252,7 +252,7 @@ def test_single_camera_training_with_one_frame_batches_is_refused_clearly(frames
 
 
 @pytest.mark.parametrize("setting, value, message", [
-    ("batch_size", 0, "batch_size must be >= 1"),
+    ("batch_size", 0, "batch_size must be a whole number >= 1"),
     ("learning_rate", float("inf"), "learning_rate must be a finite number > 0, got inf"),
     ("learning_rate", float("nan"), "learning_rate must be a finite number > 0, got nan"),
     ("head_learning_rate", float("inf"), "head_learning_rate must be a finite number > 0, got inf"),

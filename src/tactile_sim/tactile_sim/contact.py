@@ -30,6 +30,7 @@ from typing import Protocol
 import numpy as np
 
 from tactile_description import SensorDescription
+from tactile_description.value_checks import is_number
 
 from .elastic import CompliantLayer, compliant_layer
 
@@ -53,8 +54,7 @@ MIN_SAMPLE_RADIUS_M = 1e-12
 
 
 def _positive(value: float, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-            or not math.isfinite(value) or value <= 0:
+    if not is_number(value) or value <= 0:
         raise ValueError(f"{name} must be a positive finite number of metres, got {value!r}")
     return float(value)
 
@@ -122,8 +122,7 @@ class Contact:
     def __post_init__(self):
         for name in ("x_m", "y_m", "depth_m", "friction"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                    or not math.isfinite(value):
+            if not is_number(value):
                 raise ValueError(f"Contact.{name} must be a finite number, got {value!r}")
             object.__setattr__(self, name, float(value))
         if self.depth_m < 0:

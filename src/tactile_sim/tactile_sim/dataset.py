@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from tactile_description import SensorDescription
 from tactile_description.json_file import read_json
+from tactile_description.value_checks import is_whole_number
 from tactile_sim.contact import Contact
 from tactile_sim.scene import Scene
 
@@ -153,7 +154,7 @@ def _read_contacts(directory: Path, frames: int) -> list[list[dict]]:
 
 def _meta_count(meta: dict, key: str, meta_path: Path) -> int:
     value = meta.get(key)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    if not is_whole_number(value):
         raise DatasetError(f"{meta_path}: {key} must be an integer >= 1, got {value!r}; regenerate the data set")
     return value
 

@@ -24,7 +24,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from tactile_description.yaml_fields import is_number
+from tactile_description.value_checks import is_number, is_whole_number
 
 OPTICS, LIGHT, SENSOR, TRANSPORT = 0, 1, 2, 3
 
@@ -397,8 +397,8 @@ def _effect_value(kind: str, key: str, value, where: str):
             raise SceneError(f"{here} must be a non-empty list of camera ids, got {value!r}")
         return tuple(value)
     if key == "frames":
-        if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool)
-                                                                    for v in value) and 0 <= value[0] < value[1]):
+        if not (isinstance(value, list) and len(value) == 2 and all(is_whole_number(v, 0) for v in value)
+                and value[0] < value[1]):
             raise SceneError(f"{here} must be [first, stop) frame indices with 0 <= first < stop, got {value!r}")
         return (value[0], value[1])
     kind_of_value, check, expected = _RULES[key]

@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 from scipy.special import j0, j1
 
 from tactile_description import GelLayer, SensorDescription
+from tactile_description.value_checks import is_number
 
 #: The bottom gel layer is treated as a rigid base when its plane-strain modulus is at least this many times the
 #: effective modulus of the layers above it (the reference sensor: 1505 kPa over 207 kPa, a ratio of 7.3).
@@ -236,7 +237,7 @@ class GelDisplacement:
         self.n_points = len(points)
         self.dtype = np.dtype(dtype)
         radius = INFLUENCE_RADIUS_LAYERS * self.layer.thickness_m if influence_radius_m is None else influence_radius_m
-        if not (isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0):
+        if not (is_number(radius) and radius > 0):
             raise ValueError(f"influence_radius_m must be a positive number of metres, got {influence_radius_m!r}")
         self.influence_radius_m = float(radius)
         #: A bin's force acts spread over the bin; it is spread here by a Gaussian of the same variance as a

@@ -24,7 +24,8 @@ import numpy as np
 import yaml
 
 from tactile_description import BinGrid, SensorDescription, default_sensor_path
-from tactile_description.yaml_fields import YamlFields, is_number
+from tactile_description.value_checks import is_number, is_whole_number
+from tactile_description.yaml_fields import YamlFields
 from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, press_problem
 from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
 from tactile_sim.elastic import compliant_layer
@@ -103,16 +104,12 @@ def _contact(node, where: str, default_shape: Shape) -> Contact:
     return Contact(x, y, depth, shape, shear, friction)
 
 
-def _is_count(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
 def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:
     per_frame = n.raw("contacts_per_frame", 1)
-    if _is_count(per_frame):
+    if is_whole_number(per_frame):
         per_frame = [per_frame, per_frame]
-    if not (isinstance(per_frame, list) and len(per_frame) == 2 and all(_is_count(v) for v in per_frame)
-            and 1 <= per_frame[0] <= per_frame[1] <= 16):
+    if not (isinstance(per_frame, list) and len(per_frame) == 2 and all(is_whole_number(v) for v in per_frame)
+            and per_frame[0] <= per_frame[1] <= 16):
         raise SceneError(f"{n.where}.contacts_per_frame must be an integer or [min, max] with 1 <= min <= max <= 16, "
                          f"got {per_frame!r}")
     return per_frame[0], per_frame[1]
@@ -360,7 +357,7 @@ class Scene:
     def limited(self, frames: int) -> Scene:
         """The first `frames` frames of this scene (same contacts and effects as the full scene's prefix); never
         longer than the scene already is."""
-        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        if not is_whole_number(frames):
             raise SceneError(f"the frame limit must be an integer >= 1, got {frames!r}")
         return replace(self, frame_limit=frames if self.frame_limit is None else min(frames, self.frame_limit))
 
