@@ -21,7 +21,7 @@ from tactile_camera_driver.sim_camera_node import SimCameraNode
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
-from tactile_fusion.bundle_node import BundleNode
+from tactile_fusion.bundle_node import DROP_LOG_PERIOD_S, BundleNode
 from tactile_fusion.fusion_node import FusionNode
 from tactile_msgs.msg import ImageBundle
 
@@ -112,6 +112,29 @@ def test_the_bundle_node_reports_the_images_it_dropped_when_it_stops(ros_domain,
     finally:
         rclpy.try_shutdown()
     assert "the synchroniser dropped 1 image(s) (out_of_order 1; cam0 1), 1 since start" in capfd.readouterr().err
+
+
+def test_the_bundle_node_logs_drops_at_once_then_at_most_every_drop_log_period(ros_domain, capfd):
+    """The timer's report_drops, called here by hand; the 10 s are skipped by moving the last report back in time."""
+    node = build_node(BundleNode, {})
+    try:
+        def drop_one(stamp_s: float) -> str:
+            image = mono8_to_msg(np.zeros((128, 128), np.uint8), seconds_to_time(stamp_s), "cam0_optical")
+            node.on_image("cam0", image)
+            node.on_image("cam0", image)  # the same stamp again: dropped as out of order
+            node.report_drops()
+            return capfd.readouterr().err
+
+        assert "dropped 1 image(s) (out_of_order 1; cam0 1), 1 since start" in drop_one(100.0)
+        assert "dropped" not in drop_one(101.0)  # within DROP_LOG_PERIOD_S of the first report
+        node.last_report_s -= DROP_LOG_PERIOD_S
+        assert "dropped 2 image(s) (out_of_order 2; cam0 2), 3 since start" in drop_one(102.0)
+        node.last_report_s -= DROP_LOG_PERIOD_S
+        node.report_drops()
+        assert "dropped" not in capfd.readouterr().err  # nothing new, nothing said
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 @pytest.mark.system
