@@ -17,6 +17,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagReader
+from tactile_bag.mcap_crcs import fill_mcap_crcs
 from tactile_bringup.graph import NodeSpec
 from tactile_bringup.processes import spin_until, start_node, stop_nodes
 from tactile_description import default_sensor_path, load_sensor
@@ -76,6 +77,9 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, tmp_
     # receive times are wall-clock times after the capture (stamps run up to 2 ms ahead: sim_camera_node's jitter)
     assert np.all(receive_s - stamps > -0.0025) and np.median(receive_s - stamps) < 0.1
     assert all((m.height, m.width, m.encoding, len(m.data)) == (128, 128, "mono8", 128 * 128) for _, m in cam0)
+    # `record` filled in every CRC of the MCAP file (chunks, data section, summary), each right: none left to fill.
+    crcs = fill_mcap_crcs(next((tmp_path / "bag").glob("*.mcap")))
+    assert crcs.chunks >= 1 and crcs.filled == 0 and crcs.data_section_crc and crcs.summary_crc
 
     # Replay: a subscriber with the camera drivers' QoS receives the recorded images, bytes unchanged.
     replayed = []

@@ -4,6 +4,10 @@ Bags are written as rosbag2 version 9 (ROS 2 Kilted) with MCAP storage: a direct
 one .mcap file, each topic with its type name, definition and type hash, each message with its receive time
 (nanoseconds since the epoch). Reading accepts any rosbag2 bag `rosbags` reads (MCAP or sqlite3).
 Every failure to open or read a bag becomes a BagError that names the bag.
+
+The `rosbags` MCAP writer (0.11) leaves every CRC of the file 0, "not available"; BagWriter.close fills them in
+(fill_mcap_crcs), so that a reader finds bytes changed on disk, an image's pixels included, and not only damage
+that breaks the file's structure.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from pathlib import Path
 
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 
+from tactile_bag.mcap_crcs import McapError, fill_mcap_crcs
 from tactile_bag.message_types import MessageTypeError, add_types, bag_typestore
 
 #: rosbag2 metadata version written (Kilted's; `ros2 bag` of Jazzy and later reads it).
@@ -34,7 +39,8 @@ class DefinitionMismatchError(BagError):
 class BagWriter:
     """A new MCAP bag; `write` takes a topic, its type name, the receive time in ns and the serialized message.
 
-    Use as a context manager (or call `close`): the MCAP file is only complete, and readable, once closed.
+    Use as a context manager (or call `close`): the MCAP file is only complete, and readable, once closed; closing
+    also fills in its CRCs (fill_mcap_crcs).
     """
 
     def __init__(self, path: str | Path):
@@ -47,6 +53,7 @@ class BagWriter:
         self.counts: dict[str, int] = {}
         self._connections: dict[str, tuple[str, object]] = {}
         self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+        self._closed = False
         try:
             self._writer.open()
         except (WriterError, OSError) as exc:
@@ -72,7 +79,22 @@ class BagWriter:
         self.counts[topic] += 1
 
     def close(self) -> None:
-        self._writer.close()
+        """Complete the bag (rosbags writes the MCAP index and metadata.yaml), then fill in the MCAP file's CRCs.
+
+        The bag is complete and readable before the CRCs are filled in: should that fail, the BagError says so and
+        the bag reads back without them (a crash meanwhile leaves some chunks with their CRC, the rest without)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.close()
+        except (WriterError, OSError) as exc:
+            raise BagError(f"{self.path}: cannot complete the bag: {exc}") from exc
+        for mcap in sorted(self.path.glob("*.mcap")):
+            try:
+                fill_mcap_crcs(mcap)
+            except McapError as exc:
+                raise BagError(f"{self.path} is written, but without CRCs: {exc}") from exc
 
     def __enter__(self) -> BagWriter:
         return self
@@ -122,6 +144,9 @@ class BagReader:
             for connection, time_ns, raw in self._reader.messages(connections=connections):
                 yield connection.topic, connection.msgtype, time_ns, raw
         except DAMAGED_BAG_ERRORS as exc:
+            if "checksum mismatch" in str(exc).lower():  # rosbags: "Chunk checksum mismatch."
+                raise BagError(f"bag {self.path} is damaged: a chunk's CRC-32 does not match its data ({exc}): bytes "
+                               "of the file changed after it was written; take it from a copy") from exc
             raise BagError(f"bag {self.path} is damaged: reading its messages failed ({exc})") from exc
 
     def check_definitions(self, topics: Iterable[str]) -> None:
@@ -155,3 +180,4 @@ class BagReader:
 
     def __exit__(self, *exc_info) -> None:
         self.close()
+

@@ -6,6 +6,7 @@ of its images' stamps; receive times lag the stamps by a millisecond or two. Bun
 index, so that frames left out of `frames` stand for bundles lost before the recorder.
 """
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +97,21 @@ def sim_bag(tmp_path_factory, sensor, sim_frames):
     path = tmp_path_factory.mktemp("bags") / "demo"
     write_sim_bag(path, sensor, sim_frames)
     return path
+
+
+@pytest.fixture
+def flipped_pixels_bag(sim_bag, sim_frames, tmp_path):
+    """A copy of sim_bag whose .mcap has 64 bytes of cam2's last image flipped: damage that breaks neither the file's
+    structure nor the message's encoding, found only by the chunk's CRC."""
+    bag = Path(shutil.copytree(sim_bag, tmp_path / "flipped_pixels"))
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    pixels = sim_frames[-1].images[2].tobytes()
+    assert data.count(pixels) == 1
+    at = data.find(pixels) + len(pixels) // 2
+    data[at:at + 64] = bytes(255 - b for b in data[at:at + 64])
+    mcap.write_bytes(bytes(data))
+    return bag
 
 
 @pytest.fixture(scope="session")

@@ -9,12 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import get_types_from_msg, get_typestore
 from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BAG_VERSION, BagError, BagReader, BagWriter
+from tactile_bag.mcap_crcs import McapCrcs, McapError, fill_mcap_crcs
 from tactile_bag.message_types import STORE, MessageTypeError, bag_typestore, message_class
 from tactile_bag.topics import FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
@@ -117,52 +120,183 @@ def test_truncated_bag(sim_bag, tmp_path):
         BagReader(bag)
 
 
-def with_chunk_crcs(mcap: bytes) -> bytes:
-    """The MCAP file with the CRC-32 of every (uncompressed) chunk filled in, as `ros2 bag record` writes them;
-    rosbags 0.11 writes 0, "no CRC". Chunk record: opcode, length, start and end time, uncompressed size, CRC,
-    compression, records length, records (MCAP specification)."""
-    data, offset = bytearray(mcap), 8  # after the magic
-    while offset < len(data):
-        opcode, length = data[offset], struct.unpack_from("<Q", data, offset + 1)[0]
-        if opcode == 0x06:
-            compression_length = struct.unpack_from("<I", data, offset + 9 + 28)[0]
-            assert compression_length == 0, "a compressed chunk"
-            records_start = offset + 9 + 28 + 4 + 8
-            size = struct.unpack_from("<Q", data, offset + 9 + 16)[0]
-            struct.pack_into("<I", data, offset + 9 + 24, zlib.crc32(data[records_start:records_start + size]))
-        if opcode == 0x0F:  # data end: the summary follows
-            break
-        offset += 9 + length
-    return bytes(data)
+def stored_crcs(mcap: Path) -> tuple[list[tuple[int, int]], tuple[int, int], tuple[int, int]]:
+    """([(stored CRC, CRC-32 of the records) of every chunk], (stored, computed) data-section CRC, (stored, computed)
+    summary CRC) of an MCAP file with uncompressed chunks. The chunks are found through rosbags' reading of the
+    file's chunk index (not by walking the records as fill_mcap_crcs does); the Data End record lies just before the
+    summary, whose start the Footer gives (MCAP specification)."""
+    data = mcap.read_bytes()
+    reader = McapReader(mcap)
+    reader.open()
+    chunks = list(reader.chunks)
+    reader.close()
+    crcs = []
+    for chunk in chunks:
+        assert chunk.compression == ""
+        records_at = chunk.chunk_start_offset + 9 + 40
+        stored = struct.unpack_from("<I", data, chunk.chunk_start_offset + 9 + 24)[0]
+        crcs.append((stored, zlib.crc32(data[records_at:records_at + chunk.uncompressed_size])))
+    footer_at = len(data) - 8 - 29
+    summary_start = struct.unpack_from("<Q", data, footer_at + 9)[0]
+    data_end_at = summary_start - 13
+    assert data[data_end_at] == 0x0F and data[footer_at] == 0x02
+    data_crc = (struct.unpack_from("<I", data, data_end_at + 9)[0], zlib.crc32(data[:data_end_at]))
+    summary_crc = (struct.unpack_from("<I", data, footer_at + 25)[0], zlib.crc32(data[summary_start:footer_at + 25]))
+    return crcs, data_crc, summary_crc
 
 
-def test_changed_bytes_are_found_in_a_bag_with_chunk_crcs_only(sim_bag, sim_frames, tmp_path):
-    """64 bytes of cam2's last image flipped. The bags written here have no chunk CRC (rosbags' writer has none to
-    offer): the images read back changed, unnoticed (docs/bags.md says so). `ros2 bag record` writes CRCs, and then
-    the damage is refused."""
-    pixels = sim_frames[-1].images[2].tobytes()
+def rosbags_bag(path: Path, messages: int = 300, compression: bool = False) -> Path:
+    """A bag written by rosbags alone, as BagWriter's writer writes it before the CRCs are filled in: chunks of
+    about 1 MiB (here 5), optionally zstd-compressed (rosbags' only chunk compression)."""
+    writer = Writer(path, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+    if compression:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    writer.open()
+    connection = writer.add_connection("/tactile/cam0/image", IMAGE_TYPE, typestore=bag_typestore([IMAGE_TYPE]))
+    rng = np.random.default_rng(0)
+    for i in range(messages):
+        writer.write(connection, 1_700_000_000_000_000_000 + i, rng.integers(0, 32, 16_500, np.uint8).tobytes())
+    writer.close()
+    return next(path.glob("*.mcap"))
 
-    def damaged(name: str, crcs: bool) -> Path:
-        bag = copy_bag(sim_bag, tmp_path / name)
-        mcap = next(bag.glob("*.mcap"))
-        data = bytearray(with_chunk_crcs(mcap.read_bytes()) if crcs else mcap.read_bytes())
-        at = data.find(pixels) + len(pixels) // 2
-        data[at:at + 64] = bytes(255 - b for b in data[at:at + 64])
-        mcap.write_bytes(bytes(data))
-        return bag
 
-    with BagReader(damaged("without_crcs", crcs=False)) as bag:
+def test_our_bags_carry_every_crc(sim_bag, sim_frames):
+    """Each chunk's CRC-32 is that of its records; the Data End and Footer records carry the data section's and the
+    summary's. The bag reads back whole, and filling in the CRCs again finds nothing to write."""
+    mcap = next(Path(sim_bag).glob("*.mcap"))
+    chunks, data_crc, summary_crc = stored_crcs(mcap)
+    assert len(chunks) > 1 and all(stored == computed != 0 for stored, computed in chunks)
+    assert data_crc[0] == data_crc[1] != 0 and summary_crc[0] == summary_crc[1] != 0
+    with BagReader(sim_bag) as bag:
+        assert len(list(bag.messages())) == len(sim_frames) * len(bag.topics)
+    before = mcap.read_bytes()
+    assert fill_mcap_crcs(mcap) == McapCrcs(len(chunks), 0, data_crc[0], summary_crc[0])
+    assert mcap.read_bytes() == before
+
+
+@pytest.mark.parametrize("compression", [False, True], ids=["uncompressed", "zstd"])
+def test_filling_in_the_crcs_changes_nothing_else(tmp_path, compression):
+    """rosbags writes every CRC 0; filling them in changes those 4-byte fields only: the same size, the same messages
+    read back, and rosbags' reader, which checks chunk CRCs over the decompressed records, accepts them."""
+    mcap = rosbags_bag(tmp_path / "bag", compression=compression)
+    if not compression:
+        chunks, data_crc, summary_crc = stored_crcs(mcap)
+        assert {stored for stored, _ in chunks} == {0} and data_crc[0] == summary_crc[0] == 0
+    with BagReader(tmp_path / "bag") as bag:
+        messages = list(bag.messages())
+    before = mcap.read_bytes()
+    filled = fill_mcap_crcs(mcap)
+    after = mcap.read_bytes()
+    assert filled.chunks == 5 and filled.filled == 5 + 2
+    assert len(after) == len(before)
+    assert 5 + 2 < sum(a != b for a, b in zip(before, after, strict=True)) <= 4 * (5 + 2)
+    with BagReader(tmp_path / "bag") as bag:
+        assert list(bag.messages()) == messages and len(messages) == 300
+    if not compression:
+        chunks, data_crc, summary_crc = stored_crcs(mcap)
+        assert all(stored == computed for stored, computed in chunks + [data_crc, summary_crc])
+
+
+def test_a_flipped_pixel_byte_is_refused(flipped_pixels_bag, sim_frames):
+    """64 bytes of an image's pixels changed on disk: the chunk's CRC refuses them, naming the CRC mismatch, and so
+    does filling in the CRCs again. Without the CRC (set to 0, "not available", as rosbags writes it) the changed
+    image would read back, unnoticed: the damage breaks neither the file's structure nor the message's encoding."""
+    with BagReader(flipped_pixels_bag) as bag, \
+            pytest.raises(BagError, match=rf"^bag {flipped_pixels_bag} is damaged: a chunk's CRC-32 does not match its "
+                                          r"data \(Chunk checksum mismatch\.\): bytes of the file changed"):
+        list(bag.messages())
+    mcap = next(flipped_pixels_bag.glob("*.mcap"))
+    with pytest.raises(McapError, match=r"is damaged: the chunk at byte \d+ carries the CRC-32 0x[0-9a-f]{8}, its "
+                                        r"records give 0x[0-9a-f]{8}$"):
+        fill_mcap_crcs(mcap)
+
+    data = bytearray(mcap.read_bytes())
+    reader = McapReader(mcap)
+    reader.open()
+    chunk_at = reader.chunks[-1].chunk_start_offset  # the last image is in the last chunk
+    reader.close()
+    struct.pack_into("<I", data, chunk_at + 9 + 24, 0)
+    mcap.write_bytes(bytes(data))
+    with BagReader(flipped_pixels_bag) as bag:
         last = [raw for topic, _, _, raw in bag.messages() if topic == camera_topic("cam2")][-1]
     changed = np.frombuffer(bytes(deserialize_message(last, Image).data), np.uint8)
     assert (changed != sim_frames[-1].images[2].ravel()).sum() == 64
-    with BagReader(copy_bag(sim_bag, tmp_path / "intact")) as bag:
-        mcap = next(bag.path.glob("*.mcap"))
-        mcap.write_bytes(with_chunk_crcs(mcap.read_bytes()))
-    with BagReader(tmp_path / "intact") as bag:
-        assert len(list(bag.messages())) == len(sim_frames) * len(bag.topics)  # the CRCs are right
-    with BagReader(damaged("with_crcs", crcs=True)) as bag, \
-            pytest.raises(BagError, match=r"is damaged: reading its messages failed \(Chunk checksum mismatch"):
-        list(bag.messages())
+
+
+def test_a_data_section_crc_taken_before_the_chunk_crcs_is_recomputed(tmp_path):
+    """A writer that set the data-section CRC but no chunk CRC (none known does): the data-section CRC is checked
+    against the bytes as they were, then recomputed over the chunk CRCs filled in. A wrong one is refused."""
+    mcap = rosbags_bag(tmp_path / "bag", messages=100)
+    data = bytearray(mcap.read_bytes())
+    data_end_at = struct.unpack_from("<Q", data, len(data) - 8 - 29 + 9)[0] - 13
+    struct.pack_into("<I", data, data_end_at + 9, zlib.crc32(data[:data_end_at]))
+    mcap.write_bytes(bytes(data))
+    assert fill_mcap_crcs(mcap).filled == 2 + 1 + 1
+    chunks, data_crc, summary_crc = stored_crcs(mcap)
+    assert all(stored == computed != 0 for stored, computed in chunks + [data_crc, summary_crc])
+    struct.pack_into("<I", data, data_end_at + 9, 12345)
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(McapError, match=r"is damaged: its data section has the CRC-32 0x00003039 in its Data End "
+                                        r"record, its bytes give 0x"):
+        fill_mcap_crcs(mcap)
+
+
+def truncated_in_a_chunk(data: bytearray, chunk_at: int) -> bytes:
+    return bytes(data[:chunk_at + 9 + 40 + 1000])
+
+
+def chunk_records_too_long(data: bytearray, chunk_at: int) -> bytes:
+    records_length_at = chunk_at + 9 + 32
+    struct.pack_into("<Q", data, records_length_at, struct.unpack_from("<Q", data, records_length_at)[0] + 1)
+    return bytes(data)
+
+
+def chunk_of_another_size(data: bytearray, chunk_at: int) -> bytes:
+    struct.pack_into("<Q", data, chunk_at + 9 + 16, struct.unpack_from("<Q", data, chunk_at + 9 + 16)[0] - 1)
+    return bytes(data)
+
+
+def without_footer(data: bytearray, chunk_at: int) -> bytes:
+    return bytes(data[:-20])
+
+
+def not_mcap(data: bytearray, chunk_at: int) -> bytes:
+    return b"PK\x03\x04" + bytes(data[4:])
+
+
+@pytest.mark.parametrize(("damage", "error"), [
+    (truncated_in_a_chunk, r"is truncated or damaged: its record of opcode 0x06 at byte \d+ claims \d+ bytes, but "
+                           r"the file ends 1040 bytes after its start"),
+    (chunk_records_too_long, r"is damaged: the chunk at byte \d+ says it holds \d+ bytes of records, it has room "
+                             r"for \d+"),
+    (chunk_of_another_size, r"is damaged: the chunk at byte \d+ holds \d+ bytes of records, its header says \d+"),
+    (without_footer, r"is truncated or damaged: it does not end with an MCAP Footer record and the magic"),
+    (not_mcap, r"is not an MCAP file: it does not start with the MCAP magic"),
+])
+def test_a_damaged_file_is_refused_by_the_crc_fill_in_and_left_as_it_was(tmp_path, damage, error):
+    """Defined behaviour for a damaged file: an McapError that names it and where the damage lies; nothing written."""
+    mcap = rosbags_bag(tmp_path / "bag", messages=100)
+    data = bytearray(mcap.read_bytes())
+    reader = McapReader(mcap)
+    reader.open()
+    second_chunk_at = reader.chunks[1].chunk_start_offset
+    reader.close()
+    damaged = damage(data, second_chunk_at)
+    mcap.write_bytes(damaged)
+    with pytest.raises(McapError, match=rf"^{mcap} {error}$") as refused:
+        fill_mcap_crcs(mcap)
+    if re.search(r"chunk at byte|opcode 0x06 at byte", str(refused.value)):
+        assert f"at byte {second_chunk_at} " in str(refused.value)
+    assert mcap.read_bytes() == damaged
+
+
+def test_closing_twice_completes_the_bag_once(tmp_path):
+    bag = BagWriter(tmp_path / "bag")
+    bag.write("/x", IMAGE_TYPE, 1, serialize_message(Image(height=1, width=1, encoding="mono8", step=1, data=[7])))
+    bag.close()
+    bag.close()
+    with BagReader(tmp_path / "bag") as reader:
+        assert reader.counts == {"/x": 1}
 
 
 def test_damaged_metadata(sim_bag, tmp_path):

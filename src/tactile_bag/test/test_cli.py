@@ -47,6 +47,17 @@ def test_play_a_damaged_bag(tmp_path, capsys):
     assert "cannot be opened" in error_line(capsys)
 
 
+def test_play_and_eval_refuse_a_bag_whose_bytes_changed(flipped_pixels_bag, model_dir, capsys):
+    """Pixels changed on disk (the chunk CRC that BagWriter filled in no longer matches): one line, exit status 2,
+    during playback or evaluation alike."""
+    assert main(["play", str(flipped_pixels_bag), "--rate", "1000", "--wait-subscribers", "0"]) == 2
+    expected = (f"error: bag {flipped_pixels_bag} is damaged: a chunk's CRC-32 does not match its data (Chunk "
+                "checksum mismatch.): bytes of the file changed after it was written; take it from a copy")
+    assert error_line(capsys) == f"tactile-bag play: {expected}"
+    assert main(["eval", str(flipped_pixels_bag), "--model", str(model_dir), "--backend", "torch"]) == 2
+    assert error_line(capsys) == f"tactile-bag eval: {expected}"
+
+
 def test_play_needs_a_positive_rate(sim_bag, capsys):
     assert main(["play", str(sim_bag), "--rate", "0"]) == 2
     assert "--rate must be > 0" in error_line(capsys)
