@@ -82,3 +82,11 @@ def test_sigterm_while_the_graph_starts_ends_the_demo_without_a_traceback_or_a_n
     assert "Traceback" not in result.stderr, result.stderr
     assert result.returncode == 1 and "stopped while the graph was starting" in result.stderr, result.stderr
     assert not (tmp_path / "tactile_sim_cameras.log").exists()  # the cameras were never started
+
+
+@pytest.mark.parametrize("duration", ["0", "nan"])
+def test_the_demo_refuses_a_duration_that_would_end_at_once_or_never(duration, tmp_path):
+    run = subprocess.run(["tactile-demo", "--duration", duration, "--log-dir", str(tmp_path)], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2, run.stderr
+    assert f"argument --duration: must be a finite number of seconds > 0, got '{duration}'" in run.stderr

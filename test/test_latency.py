@@ -27,13 +27,14 @@ def test_latency_reports_each_window_against_the_inference_baseline(ros_domain, 
 def test_latency_rejects_a_bad_window_or_precision(tmp_path):
     run = subprocess.run(["tactile-latency", "--window", "0", "--log-dir", str(tmp_path)], capture_output=True,
                          text=True, timeout=60)
-    assert run.returncode == 2 and "--window > 0" in run.stderr
-    run = subprocess.run(["tactile-latency", "--markers-rate", "0", "--log-dir", str(tmp_path)], capture_output=True,
-                         text=True, timeout=60)
-    assert run.returncode == 2 and "--markers-rate > 0" in run.stderr
+    assert run.returncode == 2 and "argument --window: must be a finite number of seconds > 0, got '0'" in run.stderr
+    for option in ("--markers-rate", "--settle"):
+        run = subprocess.run(["tactile-latency", option, "nan", "--log-dir", str(tmp_path)], capture_output=True,
+                             text=True, timeout=60)
+        assert run.returncode == 2 and f"argument {option}: must be a finite number of" in run.stderr, run.stderr
     run = subprocess.run(["tactile-latency", "--backend", "torch", "--precision", "int8", "--log-dir", str(tmp_path)],
                          capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and "the torch backend runs fp32, fp16, not int8" in run.stderr, run.stderr
+    assert run.returncode == 2 and "the torch backend runs fp32, fp16, not 'int8'" in run.stderr, run.stderr
 
 
 def test_latency_refuses_a_model_directory_without_a_model(tmp_path):

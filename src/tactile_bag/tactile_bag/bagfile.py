@@ -12,6 +12,7 @@ that breaks the file's structure.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -79,7 +80,8 @@ class BagWriter:
         self.counts[topic] += 1
 
     def close(self) -> None:
-        """Complete the bag (rosbags writes the MCAP index and metadata.yaml), then fill in the MCAP file's CRCs.
+        """Complete the bag (rosbags writes the MCAP index and metadata.yaml), fill in the MCAP file's CRCs and flush
+        the bag to the disk.
 
         The bag is complete and readable before the CRCs are filled in: should that fail, the BagError says so and
         the bag reads back without them (a crash meanwhile leaves some chunks with their CRC, the rest without)."""
@@ -95,12 +97,27 @@ class BagWriter:
                 fill_mcap_crcs(mcap)
             except McapError as exc:
                 raise BagError(f"{self.path} is written, but without CRCs: {exc}") from exc
+        try:
+            _flush_to_disk(self.path)
+        except OSError as exc:
+            raise BagError(f"{self.path} is written, but may not be on the disk yet: {exc}") from exc
 
     def __enter__(self) -> BagWriter:
         return self
 
     def __exit__(self, *exc_info) -> None:
         self.close()
+
+
+def _flush_to_disk(bag: Path) -> None:
+    """fsync the bag's metadata.yaml (the .mcap files are, by fill_mcap_crcs) and its directory, whose entries a power
+    loss could otherwise lose: the rosbags writer syncs nothing."""
+    for path in (bag / "metadata.yaml", bag):
+        descriptor = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
 
 
 class BagReader:
@@ -180,4 +197,3 @@ class BagReader:
 
     def __exit__(self, *exc_info) -> None:
         self.close()
-

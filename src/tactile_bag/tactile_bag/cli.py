@@ -24,7 +24,12 @@ from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
+from tactile_description.command_line import (
+    error_exit,
+    number_argument,
+    stops_quietly_on_closed_pipe,
+    whole_number_argument,
+)
 from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, contact_table, metrics_table
 
 
@@ -119,25 +124,28 @@ def build_parser() -> argparse.ArgumentParser:
 
     rec = sub.add_parser("record", help="record topics of the live graph into a new MCAP bag")
     rec.add_argument("out", help="bag directory to create (must not exist)")
-    rec.add_argument("--duration", type=float, required=True,
+    rec.add_argument("--duration", type=number_argument(0.0, "seconds"), required=True,
                      help="seconds to record, from the first message received (Ctrl-C stops earlier)")
-    rec.add_argument("--wait", type=float, default=10.0, metavar="S",
+    rec.add_argument("--wait", type=number_argument(0.0, "seconds"), default=10.0, metavar="S",
                      help="give up when no message arrives within S seconds (default 10)")
     rec.add_argument("--topics", nargs="+", metavar="TOPIC",
                      help="topics to record (default: every camera's images, the bundles, the estimate and the "
                           "ground truth)")
     rec.add_argument("--sensor", default=None, help=sensor_help)
-    rec.add_argument("--discovery-timeout", type=float, default=2.0, metavar="S",
+    rec.add_argument("--discovery-timeout", type=number_argument(0.0, "seconds", inclusive=True), default=2.0,
+                     metavar="S",
                      help="how long to wait for a publisher of a topic outside the stack, to learn its type "
                           "(default 2)")
     rec.set_defaults(run=cmd_record)
 
     ply = sub.add_parser("play", help="republish a bag's messages with their recorded timing")
     ply.add_argument("bag", help="bag directory")
-    ply.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: as recorded)")
+    ply.add_argument("--rate", type=number_argument(0.0, "times the recorded speed"), default=1.0,
+                     help="speed factor (default 1: as recorded)")
     ply.add_argument("--loop", action="store_true", help="start over at the end, until Ctrl-C")
     ply.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)")
-    ply.add_argument("--wait-subscribers", type=float, default=1.0, metavar="S",
+    ply.add_argument("--wait-subscribers", type=number_argument(0.0, "seconds", inclusive=True), default=1.0,
+                     metavar="S",
                      help="wait up to S seconds for every topic to have a subscriber before the first message "
                           "(default 1)")
     ply.set_defaults(run=cmd_play)
@@ -151,7 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--source", default="auto", choices=SOURCES,
                     help="bundle the camera images (images), take the recorded bundles (bundles), or images when "
                          "the bag has every camera's (auto, default)")
-    ev.add_argument("--reference-bundles", type=int, default=REFERENCE_BUNDLES, metavar="N",
+    ev.add_argument("--reference-bundles", type=whole_number_argument(1, "bundles"), default=REFERENCE_BUNDLES,
+                    metavar="N",
                     help=f"complete bundles averaged into the reference frames, as fusion_node (default "
                          f"{REFERENCE_BUNDLES})")
     ev.add_argument("--truth-topic", default=None,

@@ -17,7 +17,6 @@ class McapError(ValueError):
     """An MCAP file whose CRCs cannot be filled in: damaged, truncated, or compressed in a way not readable here."""
 
 
-
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _HEADER, _FOOTER, _CHUNK, _DATA_END = 0x01, 0x02, 0x06, 0x0F
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, content length
@@ -72,10 +71,11 @@ def fill_mcap_crcs(path: str | Path) -> McapCrcs:
     path = Path(path)
     try:
         with path.open("rb") as file:
+            planned = _identity(file)
             chunks, patches, data_crc, summary_crc = _plan_mcap_crcs(file, path)
         if any(patches):
             with path.open("r+b") as file:
-                _write_mcap_crcs(file, path, patches)
+                _write_mcap_crcs(file, path, planned, patches)
     except OSError as exc:
         raise McapError(f"{path}: cannot fill in its CRCs: {exc}") from exc
     return McapCrcs(chunks, sum(len(group) for group in patches), data_crc, summary_crc)
@@ -212,9 +212,21 @@ def _crc_of(file: BinaryIO, length: int, crc: int, at: int | None = None) -> int
     return crc
 
 
-def _write_mcap_crcs(file: BinaryIO, path: Path, patches: list[list[Patch]]) -> None:
-    """Write each group of CRC patches and flush it to the disk before the next; first check that every field
-    still holds the value the plan read (nothing else wrote the file meanwhile)."""
+FileIdentity = tuple[int, int, int, int]
+
+
+def _identity(file: BinaryIO) -> FileIdentity:
+    """(device, inode, size, modification time in ns) of an open file: another file, or this one written, differs."""
+    status = os.fstat(file.fileno())
+    return status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns
+
+
+def _write_mcap_crcs(file: BinaryIO, path: Path, planned: FileIdentity, patches: list[list[Patch]]) -> None:
+    """Write each group of CRC patches and flush it to the disk before the next; first check that the file is the one
+    planned (`planned`: its _identity then), unchanged, and every field still holds the value the plan read."""
+    if _identity(file) != planned:
+        raise McapError(f"{path} was replaced or written while its CRCs were computed: nothing was written; try again "
+                        "once nothing else writes it")
     for position, now, _ in (patch for group in patches for patch in group):
         file.seek(position)
         if file.read(4) != struct.pack("<I", now):

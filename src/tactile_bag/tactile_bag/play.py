@@ -17,6 +17,7 @@ from rclpy.node import Node
 from tactile_bag.bagfile import BagError, BagReader
 from tactile_bag.message_types import MessageTypeError, message_class
 from tactile_bag.topics import absolute_topic, qos_profile
+from tactile_description.value_checks import is_number
 
 
 def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequence[str] | None = None,
@@ -28,10 +29,10 @@ def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequen
     sooner once every replayed topic has a matched subscriber.
     rclpy must be initialised by the caller. Ctrl-C stops the replay.
     """
-    if not rate > 0:
-        raise ValueError(f"--rate must be > 0, got {rate}")
-    if wait_subscribers_s < 0:
-        raise ValueError(f"--wait-subscribers must be >= 0 s, got {wait_subscribers_s}")
+    if not (is_number(rate) and rate > 0):
+        raise ValueError(f"--rate must be a finite number > 0, got {rate!r}")
+    if not (is_number(wait_subscribers_s) and wait_subscribers_s >= 0):
+        raise ValueError(f"--wait-subscribers must be a finite number >= 0 s, got {wait_subscribers_s!r}")
     with BagReader(path) as bag:
         selected = bag.require_topics([absolute_topic(t) for t in topics]) if topics else sorted(bag.topics)
         if not sum(bag.counts[t] for t in selected):

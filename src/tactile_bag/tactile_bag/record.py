@@ -19,6 +19,7 @@ from rclpy.node import Node
 from tactile_bag.bagfile import BagError, BagWriter
 from tactile_bag.message_types import MessageTypeError, message_class
 from tactile_bag.topics import absolute_topic, qos_profile
+from tactile_description.value_checks import is_number
 
 
 class Recorder(Node):
@@ -71,8 +72,9 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
     when no message arrives within `wait_s`. rclpy must be initialised by the caller. The bag is closed
     (complete and readable) however recording ends.
     """
-    if duration_s <= 0 or wait_s <= 0:
-        raise ValueError(f"--duration and --wait must be > 0 seconds, got {duration_s} and {wait_s}")
+    if not (is_number(duration_s) and duration_s > 0 and is_number(wait_s) and wait_s > 0):
+        raise ValueError(f"--duration and --wait must be finite numbers > 0 seconds, got {duration_s!r} and "
+                         f"{wait_s!r}")
     out = Path(out)
     if out.exists():
         raise BagError(f"{out} already exists: name a new bag directory (a bag is never overwritten)")

@@ -1,14 +1,17 @@
 """Writing bags with rosbags and reading them back; what a damaged or missing bag gives."""
 
 import json
+import os
 import re
 import struct
 import zlib
 from pathlib import Path
 
+import lz4.frame
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
+from backports import zstd
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
@@ -16,6 +19,7 @@ from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import get_types_from_msg, get_typestore
 from sensor_msgs.msg import Image
 
+from tactile_bag import mcap_crcs
 from tactile_bag.bagfile import BAG_VERSION, BagError, BagReader, BagWriter
 from tactile_bag.mcap_crcs import McapCrcs, McapError, fill_mcap_crcs
 from tactile_bag.message_types import STORE, MessageTypeError, bag_typestore, message_class
@@ -174,10 +178,25 @@ def test_our_bags_carry_every_crc(sim_bag, sim_frames):
     assert mcap.read_bytes() == before
 
 
+def crc_field_bytes(mcap: Path) -> set[int]:
+    """The byte positions of every CRC field of an MCAP file (chunks found through rosbags' chunk index; MCAP
+    specification: a chunk's uncompressed_crc 24 bytes into its content, the Data End record's data_section_crc first
+    in its content, the Footer's summary_crc last)."""
+    size = mcap.stat().st_size
+    reader = McapReader(mcap)
+    reader.open()
+    fields = [chunk.chunk_start_offset + 9 + 24 for chunk in reader.chunks]
+    reader.close()
+    footer_at = size - 8 - 29
+    summary_start = struct.unpack_from("<Q", mcap.read_bytes(), footer_at + 9)[0]
+    fields += [summary_start - 13 + 9, footer_at + 25]
+    return {at + k for at in fields for k in range(4)}
+
+
 @pytest.mark.parametrize("compression", [False, True], ids=["uncompressed", "zstd"])
 def test_filling_in_the_crcs_changes_nothing_else(tmp_path, compression):
-    """rosbags writes every CRC 0; filling them in changes those 4-byte fields only: the same size, the same messages
-    read back, and rosbags' reader, which checks chunk CRCs over the decompressed records, accepts them."""
+    """rosbags writes every CRC 0; filling them in changes bytes of those 4-byte fields only: the same size, the same
+    messages read back, and rosbags' reader, which checks chunk CRCs over the decompressed records, accepts them."""
     mcap = rosbags_bag(tmp_path / "bag", compression=compression)
     if not compression:
         chunks, data_crc, summary_crc = stored_crcs(mcap)
@@ -189,12 +208,46 @@ def test_filling_in_the_crcs_changes_nothing_else(tmp_path, compression):
     after = mcap.read_bytes()
     assert filled.chunks == 5 and filled.filled == 5 + 2
     assert len(after) == len(before)
-    assert 5 + 2 < sum(a != b for a, b in zip(before, after, strict=True)) <= 4 * (5 + 2)
+    changed = {i for i, (a, b) in enumerate(zip(before, after, strict=True)) if a != b}
+    assert len(changed) > 5 + 2 and changed <= crc_field_bytes(mcap)
     with BagReader(tmp_path / "bag") as bag:
         assert list(bag.messages()) == messages and len(messages) == 300
     if not compression:
         chunks, data_crc, summary_crc = stored_crcs(mcap)
         assert all(stored == computed for stored, computed in chunks + [data_crc, summary_crc])
+
+
+def test_the_written_file_must_be_the_one_planned(tmp_path, monkeypatch):
+    """A file written (here: only its modification time changed) between reading it and writing its CRCs is left
+    alone: the CRC offsets planned may no longer be those of its records."""
+    mcap = rosbags_bag(tmp_path / "bag", messages=100)
+    plan = mcap_crcs._plan_mcap_crcs
+
+    def plan_then_touch(file, path):
+        planned = plan(file, path)
+        os.utime(path, ns=(0, 0))
+        return planned
+
+    monkeypatch.setattr(mcap_crcs, "_plan_mcap_crcs", plan_then_touch)
+    before = mcap.read_bytes()
+    with pytest.raises(McapError, match="was replaced or written while its CRCs were computed: nothing was written"):
+        fill_mcap_crcs(mcap)
+    assert mcap.read_bytes() == before
+
+
+@pytest.mark.parametrize("codec", ["lz4", "zstd"])
+def test_compressed_chunk_records_are_decompressed_for_their_crc(codec):
+    """rosbags writes zstd chunks only (tested above); `ros2 bag record` may write lz4 ones."""
+    records = bytes(range(256)) * 64
+    if codec == "lz4":
+        compressed = lz4.frame.compress(records)
+    else:
+        compressed = zstd.compress(records)
+    assert mcap_crcs._decompress(codec, memoryview(compressed), Path("x.mcap"), "the chunk") == records
+    with pytest.raises(McapError, match=f"x.mcap is damaged: the chunk does not decompress as {codec}"):
+        mcap_crcs._decompress(codec, memoryview(bytes(32)), Path("x.mcap"), "the chunk")  # no frame magic
+    with pytest.raises(McapError, match="compressed as 'brotli', none of lz4 and zstd"):
+        mcap_crcs._decompress("brotli", memoryview(compressed), Path("x.mcap"), "the chunk")
 
 
 def test_a_flipped_pixel_byte_is_refused(flipped_pixels_bag, sim_frames):

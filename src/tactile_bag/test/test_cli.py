@@ -1,5 +1,6 @@
 """`tactile-bag record` and `play` refuse bad input with one line and exit status 2, before any message flows."""
 
+import math
 import os
 import subprocess
 import sys
@@ -7,6 +8,7 @@ import sys
 import pytest
 
 from tactile_bag.cli import main
+from tactile_bag.record import record
 
 
 @pytest.fixture(autouse=True)
@@ -26,12 +28,6 @@ def test_record_never_overwrites(sim_bag, capsys):
     assert main(["record", str(sim_bag), "--duration", "1"]) == 2
     assert error_line(capsys) == (f"tactile-bag record: error: {sim_bag} already exists: name a new bag directory "
                                   "(a bag is never overwritten)")
-
-
-def test_record_needs_a_positive_duration(tmp_path, capsys):
-    assert main(["record", str(tmp_path / "bag"), "--duration", "0"]) == 2
-    assert "--duration and --wait must be > 0 seconds" in error_line(capsys)
-    assert not (tmp_path / "bag").exists()
 
 
 def test_play_an_unknown_topic(sim_bag, capsys):
@@ -58,9 +54,33 @@ def test_play_and_eval_refuse_a_bag_whose_bytes_changed(flipped_pixels_bag, mode
     assert error_line(capsys) == f"tactile-bag eval: {expected}"
 
 
-def test_play_needs_a_positive_rate(sim_bag, capsys):
-    assert main(["play", str(sim_bag), "--rate", "0"]) == 2
-    assert "--rate must be > 0" in error_line(capsys)
+@pytest.mark.parametrize("args, message", [
+    (["play", "BAG", "--rate", "0"], "argument --rate: must be a finite number of times the recorded speed > 0, "
+                                     "got '0'"),
+    (["play", "BAG", "--rate", "nan"], "argument --rate: must be a finite number"),
+    (["play", "BAG", "--wait-subscribers", "inf"], "argument --wait-subscribers: must be a finite number of seconds "
+                                                   ">= 0, got 'inf'"),
+    (["record", "OUT", "--duration", "0"], "argument --duration: must be a finite number of seconds > 0, got '0'"),
+    (["record", "OUT", "--duration", "nan"], "argument --duration: must be a finite number of seconds > 0"),
+    (["record", "OUT", "--duration", "1", "--wait", "nan"], "argument --wait: must be a finite number of seconds > 0"),
+    (["eval", "BAG", "--reference-bundles", "0"], "argument --reference-bundles: must be a whole number of bundles "
+                                                  ">= 1, got '0'"),
+])
+def test_bad_numbers_are_refused_before_anything_runs(sim_bag, tmp_path, capsys, args, message):
+    """NaN would have recorded or waited for ever (every comparison with it is false)."""
+    args = [str(sim_bag) if a == "BAG" else str(tmp_path / "new_bag") if a == "OUT" else a for a in args]
+    with pytest.raises(SystemExit) as stopped:
+        main(args)
+    err = capsys.readouterr().err.strip().splitlines()  # argparse's usage, then the error
+    assert stopped.value.code == 2 and message in err[-1]
+    assert not (tmp_path / "new_bag").exists()
+
+
+@pytest.mark.parametrize("duration_s, wait_s", [(math.nan, 1.0), (1.0, math.inf), (0.0, 1.0)])
+def test_record_itself_refuses_a_duration_or_wait_that_never_or_at_once_ends(tmp_path, duration_s, wait_s):
+    with pytest.raises(ValueError, match="--duration and --wait must be finite numbers > 0 seconds"):
+        record(tmp_path / "new_bag", ["/tactile/cam0/image"], {}, duration_s, wait_s=wait_s)
+    assert not (tmp_path / "new_bag").exists()
 
 
 def test_record_and_play_do_not_import_the_model_stack():

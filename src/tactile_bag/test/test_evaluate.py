@@ -247,7 +247,7 @@ def test_cli_eval_contact_level(sim_bag, model_dir, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["eval", str(sim_bag), "--model", str(model_dir), "--contact-level", "nan"])
     assert exit_info.value.code == 2
-    assert "--contact-level: must be a number of newtons > 0, got 'nan'" in capsys.readouterr().err
+    assert "--contact-level: must be a finite number of newtons > 0, got 'nan'" in capsys.readouterr().err
 
 
 def test_cli_eval_text(sim_bag, model_dir, capsys):

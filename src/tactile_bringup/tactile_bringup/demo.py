@@ -29,7 +29,7 @@ from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
+from tactile_description.command_line import error_exit, number_argument, stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 
@@ -108,15 +108,14 @@ class Monitor(Node):
 @stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--duration", type=float, default=20.0, help="seconds to run the graph (default 20)")
+    parser.add_argument("--duration", type=number_argument(0.0, "seconds"), default=20.0,
+                        help="seconds to run the graph (default 20)")
     parser.add_argument("--scene", default="demo", help="simulator scene name or YAML file (default: demo)")
     parser.add_argument("--sensor", default="", help="sensor description YAML (default: the installed one)")
     parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
     parser.add_argument("--log-dir", default="log/demo", help="where the nodes' output goes (default log/demo)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     args = parser.parse_args(argv)
-    if args.duration <= 0:
-        parser.error("--duration must be > 0")
 
     sensor_config = args.sensor or str(default_sensor_path())
     log_dir = Path(args.log_dir)

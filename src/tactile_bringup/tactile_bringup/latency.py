@@ -34,7 +34,12 @@ from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes, 
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe
+from tactile_description.command_line import (
+    error_exit,
+    number_argument,
+    stops_quietly_on_closed_pipe,
+    whole_number_argument,
+)
 from tactile_fusion.artifacts import ModelFileError
 from tactile_fusion.bench import call_times_s, synthetic_frame
 from tactile_fusion.fusion_node import MARKERS_RATE_HZ
@@ -104,22 +109,22 @@ def inference_ms(model_dir: str, backend: str, precision: str) -> float:
 @stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tactile-latency", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--windows", type=int, default=5, help="measurement windows (default %(default)s)")
-    parser.add_argument("--window", type=float, default=4.0, help="seconds per window (default %(default)s)")
-    parser.add_argument("--settle", type=float, default=3.0,
+    parser.add_argument("--windows", type=whole_number_argument(1, "windows"), default=5,
+                        help="measurement windows (default %(default)s)")
+    parser.add_argument("--window", type=number_argument(0.0, "seconds"), default=4.0,
+                        help="seconds per window (default %(default)s)")
+    parser.add_argument("--settle", type=number_argument(0.0, "seconds", inclusive=True), default=3.0,
                         help="seconds between the first estimate and the first window (default %(default)s)")
     parser.add_argument("--scene", default="demo", help="simulator scene name or YAML file (default: demo)")
     parser.add_argument("--sensor", default="", help="sensor description YAML (default: the installed one)")
     parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
     parser.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
     parser.add_argument("--precision", choices=PRECISIONS, default="fp32")
-    parser.add_argument("--markers-rate", type=float, default=MARKERS_RATE_HZ,
+    parser.add_argument("--markers-rate", type=number_argument(0.0, "per second"), default=MARKERS_RATE_HZ,
                         help="RViz marker arrays per second from the fusion node (default %(default)s; the cameras' "
                              "frame rate or more: one with every estimate)")
     parser.add_argument("--log-dir", default="log/latency", help="where the nodes' output goes (default %(default)s)")
     args = parser.parse_args(argv)
-    if args.windows < 1 or args.window <= 0 or args.settle < 0 or not args.markers_rate > 0:
-        parser.error("--windows must be >= 1, --window > 0, --settle >= 0 and --markers-rate > 0")
     try:
         check_backend(args.backend, args.precision)
     except ValueError as exc:

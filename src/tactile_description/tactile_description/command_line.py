@@ -8,6 +8,8 @@ import signal
 import sys
 from collections.abc import Callable
 
+from tactile_description.value_checks import is_number
+
 # A shell reports a command killed by SIGPIPE as 128 + its number; a command that stops on a closed pipe says so.
 CLOSED_PIPE_EXIT = 128 + signal.SIGPIPE
 #: The exit status of a command refused for its input (argparse's too).
@@ -33,6 +35,22 @@ def whole_number_argument(minimum: int, unit: str, why: str = "", maximum: int |
             value = None
         if value is None or value < minimum or (maximum is not None and value > maximum):
             raise argparse.ArgumentTypeError(f"must be a whole number of {unit} {bound}{why}, got {text!r}")
+        return value
+    return parse
+
+
+def number_argument(low: float, unit: str, inclusive: bool = False):
+    """An argparse type: a finite number of `unit` above `low` (at or above it, with `inclusive`). float() alone would
+    take "nan" and "inf", which every comparison lets through or which never ends a wait."""
+    bound = f"{'>=' if inclusive else '>'} {low:g}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = None
+        if not (is_number(value) and (value >= low if inclusive else value > low)):
+            raise argparse.ArgumentTypeError(f"must be a finite number of {unit} {bound}, got {text!r}")
         return value
     return parse
 

@@ -12,8 +12,13 @@ import numbers
 
 
 def is_number(value) -> bool:
-    """A finite real number (int, float or a NumPy scalar), not a bool."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    """A finite real number (int, float or a NumPy scalar), not a bool; an integer too large for a float is not."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # math.isfinite(10**400)
+        return False
 
 
 def is_whole_number(value, low: int = 1) -> bool:

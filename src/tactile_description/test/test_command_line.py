@@ -11,6 +11,7 @@ import pytest
 from tactile_description.command_line import (
     CLOSED_PIPE_EXIT,
     error_exit,
+    number_argument,
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
@@ -74,3 +75,15 @@ def test_a_whole_number_argument_names_its_unit_and_bounds():
             frames(text)
     with pytest.raises(argparse.ArgumentTypeError, match=r"of draws >= 0 \(why\), got '-1'"):
         whole_number_argument(0, "draws", " (why)")("-1")
+
+
+def test_a_number_argument_refuses_what_float_takes_but_no_wait_can_use():
+    seconds = number_argument(0.0, "seconds")
+    assert seconds("2.5") == 2.5 and seconds("1e-3") == 0.001
+    for text in ("0", "-1", "nan", "inf", "-inf", "soon", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"must be a finite number of seconds > 0, got '{text}'"):
+            seconds(text)
+    settle = number_argument(0.0, "seconds", inclusive=True)
+    assert settle("0") == 0.0
+    with pytest.raises(argparse.ArgumentTypeError, match="of seconds >= 0, got '-0.5'"):
+        settle("-0.5")

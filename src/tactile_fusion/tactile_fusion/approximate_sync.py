@@ -116,7 +116,7 @@ class ApproximateTimeSync(Generic[Item]):
             if not (is_number(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if not (is_number(min_period_s) and min_period_s >= 0):
-            raise ValueError(f"min_period_s must be a finite number >= 0, got {min_period_s}")
+            raise ValueError(f"min_period_s must be a finite number >= 0, got {min_period_s!r}")
         self.stream_ids = tuple(stream_ids)
         self.queue_size = queue_size
         self.max_spread_s = max_spread_s

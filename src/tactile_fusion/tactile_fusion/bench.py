@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile_description.value_checks import is_whole_number
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ModelFileError,
@@ -89,8 +90,8 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
               threads: int | None = 1) -> dict:
     """{backend_precision: {ms_per_frame, p90_ms, ratio_to_baseline, accuracy}} plus the setting, for one model
     directory. runs: timed calls per backend, at least 1 (ValueError otherwise)."""
-    if runs < 1:
-        raise ValueError(f"benchmark: runs must be >= 1, got {runs}")
+    if not is_whole_number(runs):
+        raise ValueError(f"benchmark: runs must be a whole number >= 1, got {runs!r}")
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
     predictors = {f"{backend}_{precision}": load_predictor(model_dir, backend, precision, threads)
                   for backend, precisions in BACKENDS.items() for precision in precisions}

@@ -248,6 +248,7 @@ class SceneDraws:
     def __post_init__(self):
         if not is_whole_number(self.draws, 0):
             raise ValueError(f"SceneDraws: draws must be an integer >= 0, got {self.draws!r}")
+        object.__setattr__(self, "draws", int(self.draws))  # a NumPy integer would reach training.json
         if self.draws and self.scene is None:
             raise ValueError("SceneDraws: further draws need a scene to draw from")
 

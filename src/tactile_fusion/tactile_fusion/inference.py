@@ -204,7 +204,7 @@ def check_backend(backend: str, precision: str) -> None:
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
     if precision not in BACKENDS[backend]:
-        raise ValueError(f"the {backend} backend runs {', '.join(BACKENDS[backend])}, not {precision}; choose one of "
+        raise ValueError(f"the {backend} backend runs {', '.join(BACKENDS[backend])}, not {precision!r}; choose one of "
                          "those or another backend")
 
 

@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tactile_description.value_checks import is_whole_number
+
 if TYPE_CHECKING:
     from tactile_description import SensorDescription
     from tactile_fusion.inference import ForcePredictor
@@ -62,8 +64,8 @@ class ReferenceFrames:
 
     def __init__(self, n_cameras: int, image_shape: tuple[int, int], count: int = REFERENCE_BUNDLES,
                  patience: int = REFERENCE_PATIENCE_BUNDLES):
-        if count < 1:
-            raise ValueError(f"the reference needs at least one frame, got count={count}")
+        if not is_whole_number(count):
+            raise ValueError(f"the reference needs a whole number of frames >= 1, got count={count!r}")
         self.count = count
         self.patience = max(count, patience)
         self.n_cameras, self.image_shape = n_cameras, image_shape

@@ -12,9 +12,10 @@ lies from the true one.
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
+
+from tactile_description.command_line import number_argument
+from tactile_description.value_checks import is_number
 
 COMPONENTS = ("Fx", "Fy", "Fz")
 #: A frame's estimate reports a contact when its total Fz reaches this (newtons): about five times the error per bin.
@@ -136,20 +137,15 @@ def detection_limit(bands: list[dict]) -> float | None:
 
 def checked_contact_level(contact_level_n) -> float:
     """The contact level as a float, a finite number > 0 (newtons); ValueError otherwise."""
-    value = float(contact_level_n)
-    if not (np.isfinite(value) and value > 0):
+    if not (is_number(contact_level_n) and contact_level_n > 0):
         raise ValueError(f"contact_metrics: contact_level_n must be a finite number > 0 (newtons), got "
                          f"{contact_level_n!r}")
-    return value
+    return float(contact_level_n)
 
 
-def contact_level_argument(text: str) -> float:
-    """`--contact-level NEWTONS` of `tactile-fusion eval` and `tactile-bag eval` (an argparse type): a level that
-    `checked_contact_level` takes, so that a bad value is refused before any evaluation runs."""
-    try:
-        return checked_contact_level(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of newtons > 0, got {text!r}") from None
+#: `--contact-level NEWTONS` of `tactile-fusion eval` and `tactile-bag eval` (an argparse type), refused before any
+#: evaluation runs.
+contact_level_argument = number_argument(0.0, "newtons")
 
 
 def contact_table(rows: dict[str, dict]) -> str:

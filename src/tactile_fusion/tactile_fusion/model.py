@@ -64,7 +64,7 @@ class ModelConfig:
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"ModelConfig: dropout must be in [0, 1), got {self.dropout}")
         if self.fusion_rank is not None and not is_whole_number(self.fusion_rank):
-            raise ValueError(f"ModelConfig: fusion_rank must be >= 1 or None, got {self.fusion_rank}")
+            raise ValueError(f"ModelConfig: fusion_rank must be a whole number >= 1 or None, got {self.fusion_rank!r}")
         if self.feature_activation not in FEATURE_ACTIVATIONS:
             raise ValueError(f"ModelConfig: feature_activation must be one of {list(FEATURE_ACTIVATIONS)}, got "
                              f"{self.feature_activation!r}")

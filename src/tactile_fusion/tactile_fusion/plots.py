@@ -58,6 +58,13 @@ def grid_bin_size_mm(grid: BinGrid) -> tuple[float, float]:
     return 1e3 * grid.bin_width_m, 1e3 * grid.bin_length_m
 
 
+def trend_line_mn(trend: dict, fractions: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(data fraction in %, error in mN times `scale`) along a trend line of the recalibration study (newtons per unit
+    fraction: `slope_n_per_fraction`, `intercept_n`) over the range of `fractions`."""
+    line = np.linspace(fractions.min(), fractions.max(), 50)
+    return 100 * line, (trend["slope_n_per_fraction"] * line + trend["intercept_n"]) * scale * 1e3
+
+
 def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     """Left: test errors against the fraction of data used for recalibration, with the study's least-squares trend
     lines and the fully trained model's error; right: wall time of full training against recalibration, titled with
@@ -68,12 +75,10 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
                                ("rmse_total_n", "total Fz RMSE / 10", "tab:orange")):
         scale = 0.1 if key == "rmse_total_n" else 1.0
         errors = np.array([run["metrics"][key][2] for run in sweep["recalibration"]]) * scale * 1e3
-        trend = sweep["trend_lines"][f"{key}_fz"]
-        slope, intercept = (trend[k] * scale * 1e3 for k in ("slope_n_per_fraction", "intercept_n"))
         ax.plot(fractions * 100, errors, "o", color=colour, label=f"recalibrated: {label}")
-        line = np.linspace(fractions.min(), fractions.max(), 50)
-        ax.plot(line * 100, slope * line + intercept, "-", color=colour, alpha=0.6,
-                label=f"trend {slope:+.3f} mN per 100 % data")
+        percent, line_mn = trend_line_mn(sweep["trend_lines"][f"{key}_fz"], fractions, scale)
+        ax.plot(percent, line_mn, "-", color=colour, alpha=0.6,
+                label=f"trend {line_mn[-1] - line_mn[0]:+.3f} mN over {percent[-1] - percent[0]:.0f} % data")
         ax.axhline(sweep["full_training"]["metrics"][key][2] * scale * 1e3, color=colour, ls="--", alpha=0.7,
                    label=f"full training, all cameras ({label})")
         if "base_training" in sweep:

@@ -110,7 +110,7 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name} must be a finite number > 0, got {getattr(self, name)!r}")
         if not (is_number(self.min_learning_rate) and self.min_learning_rate >= 0):
             raise ValueError(f"TrainConfig.min_learning_rate must be a finite number >= 0, got "
-                             f"{self.min_learning_rate}")
+                             f"{self.min_learning_rate!r}")
         if self.head_dropout is not None and not 0.0 <= self.head_dropout < 1.0:
             raise ValueError(f"TrainConfig.head_dropout must be in [0, 1), got {self.head_dropout}")
         if self.head_precision not in STEP_PRECISIONS:

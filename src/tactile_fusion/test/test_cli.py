@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON, file_sha256
+from tactile_fusion.bench import benchmark
 from tactile_fusion.training import TrainConfig
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
@@ -97,7 +98,7 @@ def test_eval_measures_a_model_on_the_test_split_of_its_own_training_scene(tmp_p
 def test_eval_contact_level_and_frames_are_checked_before_anything_runs(tiny_model):
     out, _ = tiny_model
     result = run("eval", "--model", str(out), "--frames", "4", "--contact-level", "-1", check=False)
-    assert result.returncode == 2 and "--contact-level: must be a number of newtons > 0" in result.stderr
+    assert result.returncode == 2 and "--contact-level: must be a finite number of newtons > 0" in result.stderr
     result = run("eval", "--model", str(out), "--frames", "-4", check=False)
     assert result.returncode == 2 and "--frames: must be a whole number of frames >= 1" in result.stderr
     result = run("eval", "--model", str(out), "--frames", "4", "--split", "test", check=False)
@@ -117,6 +118,12 @@ def test_eval_prints_a_table_for_a_scene_and_each_precision(tiny_model):
     result = run("eval", "--model", str(out), "--scene", "edge_corner", "--frames", "3", "--precision", "int8",
                  "--quiet")
     assert "edge_corner (all)" in result.stdout and "bin Fz mN" in result.stdout
+
+
+def test_the_benchmark_needs_a_whole_number_of_runs():
+    for runs in (0, 2.5):
+        with pytest.raises(ValueError, match=f"benchmark: runs must be a whole number >= 1, got {runs}"):
+            benchmark(runs=runs)
 
 
 def test_bench_json_reports_each_backend_and_precision(tiny_model):
@@ -410,7 +417,7 @@ def one_camera_sensor(tmp_path) -> Path:
 
 @pytest.mark.parametrize("args, message", [
     ("eval --backend torch --precision int8",
-     "eval: error: the torch backend runs fp32, fp16, not int8; choose one of those or another backend"),
+     "eval: error: the torch backend runs fp32, fp16, not 'int8'; choose one of those or another backend"),
     ("eval --backend torch --threads -1", "eval: error: argument --threads: must be a whole number of threads >= 1"),
     ("train --threads 0 --out OUT", "train: error: argument --threads: must be a whole number of threads >= 1"),
     ("train --frames 2 --out OUT",

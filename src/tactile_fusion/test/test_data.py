@@ -1,5 +1,6 @@
 """Frames from the simulator and from written datasets, the deterministic split, and sensor mismatch errors."""
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -134,6 +135,9 @@ def test_further_draws_are_the_scene_with_the_next_seeds_in_chunks(sensor, monke
         SceneDraws(sensor, scene, -1)
     with pytest.raises(ValueError, match="further draws need a scene"):
         SceneDraws(sensor, None, 1)
+    from_numpy = SceneDraws(sensor, scene.limited(np.int64(5)), np.int64(1))  # as an array's length or index gives
+    assert json.loads(json.dumps(from_numpy.describe())) == {"draws": 1, "scene": "paper_grid",
+                                                             "seeds": [scene.seed + 1], "frames": 5}
 
 
 def test_further_draws_of_the_training_data_as_the_command_line_resolves_them(sensor):

@@ -220,7 +220,7 @@ def test_missing_model_and_unknown_backend_are_explained(tmp_path, model_dir):
     with pytest.raises(ModelFileError, match="tactile-fusion train"):
         load_predictor(tmp_path)
     out, _ = model_dir
-    with pytest.raises(ValueError, match="the torch backend runs fp32, fp16, not int8"):
+    with pytest.raises(ValueError, match="the torch backend runs fp32, fp16, not 'int8'"):
         load_predictor(out, "torch", "int8")
     with pytest.raises(ValueError, match="backend must be one of"):
         load_predictor(out, "tensorrt")

@@ -41,8 +41,9 @@ def test_reset_takes_the_reference_again():
 
 
 def test_a_reference_needs_a_frame():
-    with pytest.raises(ValueError, match="at least one frame"):
-        ReferenceFrames(4, (128, 128), count=0)
+    for count in (0, 2.5):
+        with pytest.raises(ValueError, match=f"a whole number of frames >= 1, got count={count}"):
+            ReferenceFrames(4, (128, 128), count=count)
 
 
 def test_the_reference_knows_how_far_its_own_frames_lie_from_it():

@@ -13,7 +13,7 @@ from tactile_fusion.metrics import (
     force_metrics,
     metrics_table,
 )
-from tactile_fusion.plots import example_frames, plot_fz_maps, plot_recalibration
+from tactile_fusion.plots import example_frames, plot_fz_maps, plot_recalibration, trend_line_mn
 from tactile_fusion.study import least_squares_line
 
 
@@ -147,6 +147,13 @@ def test_contact_table_lists_false_contacts_and_each_band():
 def test_least_squares_line_recovers_a_line():
     x = np.array([0.1, 0.5, 1.0])
     assert least_squares_line(x, 2.0 * x - 1.0) == pytest.approx((2.0, -1.0))
+
+
+def test_a_trend_line_is_drawn_in_millinewtons_over_the_fractions_measured():
+    trend = {"slope_n_per_fraction": -0.001, "intercept_n": 0.003}  # 3 mN at no data, 2 mN with all of it
+    percent, error_mn = trend_line_mn(trend, np.array([0.1, 0.5, 1.0]), scale=0.1)
+    assert (percent[0], percent[-1]) == pytest.approx((10.0, 100.0))
+    assert (error_mn[0], error_mn[-1]) == pytest.approx((0.29, 0.2))
 
 
 def test_figures_are_written(tmp_path):

@@ -30,7 +30,7 @@ from typing import Protocol
 import numpy as np
 
 from tactile_description import SensorDescription
-from tactile_description.value_checks import is_number
+from tactile_description.value_checks import is_number, is_whole_number
 
 from .elastic import CompliantLayer, compliant_layer
 
@@ -292,8 +292,9 @@ class AnalyticContactModel:
     name = "analytic"
 
     def __init__(self, sensor: SensorDescription, rings: int = 24, sectors: int = 32):
-        if rings < 1 or sectors < 4 or sectors % 4:
-            raise ValueError(f"rings must be >= 1 and sectors a positive multiple of 4, got {rings}, {sectors}")
+        if not (is_whole_number(rings) and is_whole_number(sectors, 4) and sectors % 4 == 0):
+            raise ValueError(f"rings must be a whole number >= 1 and sectors a positive multiple of 4, got {rings!r}, "
+                             f"{sectors!r}")
         self.sensor = sensor
         self.layer = compliant_layer(sensor)
         self._rings = rings

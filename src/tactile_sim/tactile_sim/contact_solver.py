@@ -34,6 +34,7 @@ from scipy.ndimage import map_coordinates
 from scipy.special import j0
 
 from tactile_description import SensorDescription
+from tactile_description.value_checks import is_whole_number
 
 from .contact import Contact, FlatPunch, HeightMap, Sphere, check_contact, stick_depth_m
 from .elastic import CompliantLayer, compliant_layer
@@ -119,8 +120,8 @@ class NumericalContactModel:
 
     def __init__(self, sensor: SensorDescription, pixels_per_bin: int = 8, tolerance: float = 1e-10,
                  max_iterations: int = 2000):
-        if pixels_per_bin < 1:
-            raise ValueError(f"pixels_per_bin must be >= 1, got {pixels_per_bin}")
+        if not is_whole_number(pixels_per_bin):
+            raise ValueError(f"pixels_per_bin must be a whole number >= 1, got {pixels_per_bin!r}")
         self.sensor = sensor
         self.layer = compliant_layer(sensor)
         self.pixels_per_bin = pixels_per_bin

@@ -359,6 +359,7 @@ class Scene:
         longer than the scene already is."""
         if not is_whole_number(frames):
             raise SceneError(f"the frame limit must be an integer >= 1, got {frames!r}")
+        frames = int(frames)  # a NumPy integer would reach the JSON records of a data set or a model
         return replace(self, frame_limit=frames if self.frame_limit is None else min(frames, self.frame_limit))
 
     def contacts(self, sensor: SensorDescription) -> Iterator[tuple[Contact, ...]]:

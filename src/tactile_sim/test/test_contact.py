@@ -10,6 +10,7 @@ import pytest
 from tactile_description import load_sensor
 from tactile_sim.contact import (
     MAX_SPHERE_CHI,
+    AnalyticContactModel,
     Contact,
     FlatPunch,
     HeightMap,
@@ -23,6 +24,7 @@ from tactile_sim.contact import (
     reference_press,
     stick_depth_m,
 )
+from tactile_sim.contact_solver import NumericalContactModel
 from tactile_sim.elastic import compliant_layer
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
@@ -232,6 +234,15 @@ def test_bad_shapes_are_rejected_clearly():
         HeightMap(np.ones((2, 2)), 1e-4)
     with pytest.raises(ValueError, match="2-D"):
         HeightMap(np.zeros(4), 1e-4)
+
+
+def test_bad_model_resolutions_are_rejected_clearly(sensor):
+    for rings, sectors in ((0, 32), (2.5, 32), (24, 30), (24, 0)):
+        with pytest.raises(ValueError, match="rings must be a whole number >= 1 and sectors a positive multiple of 4"):
+            AnalyticContactModel(sensor, rings, sectors)
+    for pixels in (0, 1.5):
+        with pytest.raises(ValueError, match=f"pixels_per_bin must be a whole number >= 1, got {pixels}"):
+            NumericalContactModel(sensor, pixels)
 
 
 def test_press_report_matches_bin_forces(sensor, model):
