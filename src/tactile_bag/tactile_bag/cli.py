@@ -22,6 +22,7 @@ from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, 
 from tactile_bag.play import play
 from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
+from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
 from tactile_description.command_line import (
@@ -40,6 +41,11 @@ def cmd_record(args) -> int:
     started = time.monotonic()
     try:
         counts = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout, args.wait)
+    except (KeyboardInterrupt, Exception) as exc:
+        if not stopped_by_signal(exc):
+            raise
+        print("tactile-bag record: stopped before recording began", file=sys.stderr)  # once it has, record() stops
+        return 1
     finally:
         rclpy.try_shutdown()
     total = sum(counts.values())
@@ -58,6 +64,11 @@ def cmd_play(args) -> int:
     started = time.monotonic()
     try:
         counts = play(args.bag, args.rate, args.loop, args.topics, args.wait_subscribers)
+    except (KeyboardInterrupt, Exception) as exc:
+        if not stopped_by_signal(exc):
+            raise
+        print("tactile-bag play: stopped before playback began", file=sys.stderr)  # once it has, play() stops
+        return 1
     finally:
         rclpy.try_shutdown()
     print(f"played {sum(counts.values())} messages in {time.monotonic() - started:.1f} s from {args.bag}: "

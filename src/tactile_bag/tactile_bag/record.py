@@ -13,12 +13,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bag.bagfile import BagError, BagWriter
 from tactile_bag.message_types import MessageTypeError, message_class
 from tactile_bag.topics import absolute_topic, qos_profile
+from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_description.command_line import stop_signals_ignored
 from tactile_description.value_checks import is_number
 
 
@@ -99,8 +100,11 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
                 if left_s <= 0:
                     break
                 rclpy.spin_once(recorder, timeout_sec=min(0.1, left_s))
-        except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM (rclpy shuts ROS down)
-            pass
+        except (KeyboardInterrupt, Exception) as exc:
+            if not stopped_by_signal(exc):  # Ctrl-C, or SIGTERM (rclpy shuts ROS down)
+                raise
         finally:
             recorder.destroy_node()
+        with stop_signals_ignored():  # an impatient second Ctrl-C would leave the bag without its index: unreadable
+            bag.close()
         return dict(bag.counts)

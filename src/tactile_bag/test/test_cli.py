@@ -2,10 +2,14 @@
 
 import math
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
+import rclpy
+from rclpy.node import Node
 
 from tactile_bag.cli import main
 from tactile_bag.record import record
@@ -90,3 +94,32 @@ def test_record_and_play_do_not_import_the_model_stack():
                               capture_output=True, text=True, timeout=60)
     assert imported.returncode == 0, imported.stderr
     assert imported.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+@pytest.mark.parametrize("loop", [False, True], ids=["waiting-for-subscribers", "playing"])
+def test_play_stopped_by_a_signal_says_what_it_played(sim_bag, stop, loop):
+    """Stopped while it waits for subscribers (before: KeyboardInterrupt's traceback), or while it plays in a loop: a
+    summary line and exit status 0, never a traceback. The signal is sent once the player's publishers are on the
+    graph, seen by a probe node."""
+    args = ["tactile-bag", "play", str(sim_bag)] + (["--loop", "--wait-subscribers", "0"] if loop else
+                                                     ["--wait-subscribers", "60"])
+    rclpy.init()
+    probe = Node("play_signal_probe")
+    player = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30.0
+        while not probe.count_publishers("/tactile/cam0/image") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        player.send_signal(stop)
+        out, err = player.communicate(timeout=30)
+    finally:
+        if player.poll() is None:
+            player.kill()
+            player.communicate()
+        probe.destroy_node()
+        rclpy.try_shutdown()
+    assert player.returncode == 0 and "Traceback" not in err, err
+    played = int(out.split("played ")[1].split()[0])
+    assert played > 0 if loop else played == 0, out

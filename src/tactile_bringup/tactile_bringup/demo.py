@@ -24,9 +24,10 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes, stopped_by_signal
+from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
 from tactile_description.command_line import error_exit, number_argument, stops_quietly_on_closed_pipe

@@ -30,8 +30,9 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes, stopped_by_signal
+from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
 from tactile_description.command_line import (

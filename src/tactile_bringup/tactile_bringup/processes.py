@@ -11,10 +11,10 @@ from pathlib import Path
 
 import rclpy
 from ament_index_python.packages import get_package_prefix
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec
+from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC
 from tactile_description.command_line import error_exit
 
@@ -85,15 +85,6 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
         stop_nodes(processes)
         raise
     return others + cameras, processes
-
-
-def stopped_by_signal(error: BaseException) -> bool:
-    """Whether `error` is how a Ctrl-C or SIGTERM ended a tool's spinning: KeyboardInterrupt, rclpy's
-    ExternalShutdownException, or any error raised once the signal had shut rclpy's context down (rclpy's handler
-    does that at once, so an rcl call already under way, such as count_publishers, then fails with "context is
-    invalid" instead)."""
-    return isinstance(error, (KeyboardInterrupt, ExternalShutdownException)) or (isinstance(error, Exception)
-                                                                                 and not rclpy.ok())
 
 
 def start_tool_graph(program: str, specs: list[NodeSpec], log_dir: Path, probe: Node

@@ -8,8 +8,9 @@ import traceback
 from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+
+from tactile_conversions.stop_signals import stopped_by_signal
 
 #: How long the middleware may take to destroy the node and the context once the node has stopped. Fast DDS 3.2.3
 #: (the newest wheel) can deadlock while it deletes the participant if a discovery message about a peer that is
@@ -44,10 +45,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
     try:
         node = make_node()
         rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        if rclpy.ok():
+    except (KeyboardInterrupt, Exception) as exc:
+        if not stopped_by_signal(exc):
             traceback.print_exc()
             failed = True
     finally:

@@ -1,6 +1,7 @@
 """What every command line of the stack does alike (no ROS import)."""
 
 import argparse
+import contextlib
 import functools
 import os
 import select
@@ -76,6 +77,22 @@ def stops_quietly_on_closed_pipe(main: Callable[..., int]) -> Callable[..., int]
             return CLOSED_PIPE_EXIT
 
     return wrapped
+
+
+@contextlib.contextmanager
+def stop_signals_ignored():
+    """Ignore Ctrl-C and SIGTERM while the block runs: for the end of a command that a second Ctrl-C must not cut
+    short, such as closing a recording, which a half-done close would leave unreadable; the stop is under way anyway.
+
+    Ignored, not held back: a blocked signal would still reach the process through any thread that does not block it
+    (DDS has several), and Python would raise KeyboardInterrupt in the main thread all the same. Python's handlers are
+    restored afterwards; one installed outside Python (rclpy's) is not, so use this at the end of a ROS session."""
+    previous = {number: signal.signal(number, signal.SIG_IGN) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 def _stdout_closed() -> bool:

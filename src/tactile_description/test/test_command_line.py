@@ -1,10 +1,13 @@
-"""A command line whose reader goes away stops quietly, in a real process with a real pipe."""
+"""What every command line does alike: one error line, argparse types, quiet stop on a closed pipe (in a real process
+with a real pipe), stop signals ignored while a bag closes."""
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -12,6 +15,7 @@ from tactile_description.command_line import (
     CLOSED_PIPE_EXIT,
     error_exit,
     number_argument,
+    stop_signals_ignored,
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
@@ -87,3 +91,16 @@ def test_a_number_argument_refuses_what_float_takes_but_no_wait_can_use():
     assert settle("0") == 0.0
     with pytest.raises(argparse.ArgumentTypeError, match="of seconds >= 0, got '-0.5'"):
         settle("-0.5")
+
+
+def test_a_ctrl_c_while_stop_signals_are_ignored_neither_cuts_the_block_short_nor_leaves_it():
+    finished = []
+    with stop_signals_ignored():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.1)  # a KeyboardInterrupt would be raised here, were the signal not ignored
+        finished.append(True)
+    assert finished == [True]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with pytest.raises(KeyboardInterrupt):  # and Ctrl-C works again after the block
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1.0)
