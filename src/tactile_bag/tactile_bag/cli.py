@@ -44,7 +44,9 @@ def cmd_record(args) -> int:
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             raise
-        print("tactile-bag record: stopped before recording began", file=sys.stderr)  # once it has, record() stops
+        # record() itself ends on a signal once it records; this is one before then, or a second one meanwhile
+        print(f"tactile-bag record: stopped; {args.out} holds what was recorded by then, if it was created",
+              file=sys.stderr)
         return 1
     finally:
         rclpy.try_shutdown()
@@ -67,7 +69,7 @@ def cmd_play(args) -> int:
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             raise
-        print("tactile-bag play: stopped before playback began", file=sys.stderr)  # once it has, play() stops
+        print("tactile-bag play: stopped", file=sys.stderr)  # before playback began (play() reports one after)
         return 1
     finally:
         rclpy.try_shutdown()
