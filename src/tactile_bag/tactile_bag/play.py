@@ -17,7 +17,7 @@ from rclpy.node import Node
 from tactile_bag.bagfile import BagError, BagReader
 from tactile_bag.message_types import MessageTypeError, message_class
 from tactile_bag.topics import absolute_topic, qos_profile
-from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_conversions.stop_signals import until_stop_signal
 from tactile_description.value_checks import is_number
 
 
@@ -47,16 +47,13 @@ def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequen
             except MessageTypeError as exc:
                 raise BagError(f"bag {bag.path}: cannot replay: {exc}") from exc
             counts = dict.fromkeys(selected, 0)
-            try:
+            with until_stop_signal():
                 wait_until = time.monotonic() + wait_subscribers_s
                 while time.monotonic() < wait_until and not all(p.get_subscription_count()
                                                                 for p in publishers.values()):
                     time.sleep(0.02)
                 while _play_once(bag, selected, publishers, counts, rate) and loop:
                     pass
-            except (KeyboardInterrupt, Exception) as exc:
-                if not stopped_by_signal(exc):  # Ctrl-C, or SIGTERM (rclpy shuts ROS down)
-                    raise
             return counts
         finally:
             node.destroy_node()

@@ -18,7 +18,7 @@ from rclpy.node import Node
 from tactile_bag.bagfile import BagError, BagWriter
 from tactile_bag.message_types import MessageTypeError, message_class
 from tactile_bag.topics import absolute_topic, qos_profile
-from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_conversions.stop_signals import until_stop_signal
 from tactile_description.command_line import stop_signals_ignored
 from tactile_description.value_checks import is_number
 
@@ -93,18 +93,16 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
     with BagWriter(out) as bag:
         recorder = Recorder(bag, topic_types)
         give_up = time.monotonic() + wait_s
-        try:
-            while True:
-                first = recorder.first_arrival_s
-                left_s = (first + duration_s if first is not None else give_up) - time.monotonic()
-                if left_s <= 0:
-                    break
-                rclpy.spin_once(recorder, timeout_sec=min(0.1, left_s))
-        except (KeyboardInterrupt, Exception) as exc:
-            if not stopped_by_signal(exc):  # Ctrl-C, or SIGTERM (rclpy shuts ROS down)
-                raise
-        finally:
-            recorder.destroy_node()
+        with until_stop_signal():
+            try:
+                while True:
+                    first = recorder.first_arrival_s
+                    left_s = (first + duration_s if first is not None else give_up) - time.monotonic()
+                    if left_s <= 0:
+                        break
+                    rclpy.spin_once(recorder, timeout_sec=min(0.1, left_s))
+            finally:
+                recorder.destroy_node()
         with stop_signals_ignored():  # an impatient second Ctrl-C would leave the bag without its index: unreadable
             bag.close()
         return dict(bag.counts)

@@ -27,7 +27,7 @@ from tactile_bringup.graph import sensor_graph
 from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
-from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_conversions.stop_signals import until_stop_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
 from tactile_description.command_line import error_exit, number_argument, stops_quietly_on_closed_pipe
@@ -135,22 +135,20 @@ def main(argv: list[str] | None = None) -> int:
     next_report = started + 1.0
     died = None  # the first node that exited while the graph ran
     try:
-        while time.monotonic() - started < args.duration:
-            rclpy.spin_once(monitor, timeout_sec=0.05)
-            died = next((s for s, p in zip(specs, processes, strict=True) if p.poll() is not None), None)
-            if died:
-                print(f"tactile-demo: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
-                      file=sys.stderr)
-                break
-            if time.monotonic() >= next_report and not args.json:
-                next_report += 1.0
-                line = f"{time.monotonic() - started:5.1f} s  {len(monitor.arrivals_s):5d} estimates"
-                if monitor.last:
-                    line += f"  total Fz estimated {monitor.last[0]:6.3f} N, true {monitor.last[1]:6.3f} N"
-                print(line, flush=True)
-    except BaseException as exc:  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
-        if not stopped_by_signal(exc):
-            raise
+        with until_stop_signal():  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
+            while time.monotonic() - started < args.duration:
+                rclpy.spin_once(monitor, timeout_sec=0.05)
+                died = next((s for s, p in zip(specs, processes, strict=True) if p.poll() is not None), None)
+                if died:
+                    print(f"tactile-demo: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
+                          file=sys.stderr)
+                    break
+                if time.monotonic() >= next_report and not args.json:
+                    next_report += 1.0
+                    line = f"{time.monotonic() - started:5.1f} s  {len(monitor.arrivals_s):5d} estimates"
+                    if monitor.last:
+                        line += f"  total Fz estimated {monitor.last[0]:6.3f} N, true {monitor.last[1]:6.3f} N"
+                    print(line, flush=True)
     finally:
         codes = stop_nodes(processes)
         summary = monitor.summary(time.monotonic() - started)

@@ -32,7 +32,7 @@ from rclpy.node import Node
 from tactile_bringup.graph import NodeSpec, sensor_graph
 from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes
 from tactile_conversions.ros_time import time_to_seconds
-from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_conversions.stop_signals import until_stop_signal
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path, load_sensor
 from tactile_description.command_line import (
@@ -148,18 +148,16 @@ def main(argv: list[str] | None = None) -> int:
         return started
     specs, processes = started
     try:
-        if spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC], FIRST_ESTIMATE_TIMEOUT_S):
-            spin_until(probe, lambda: False, args.settle)
-            probe.take()
-            for _ in range(args.windows):
-                spin_until(probe, lambda: False, args.window)
-                windows.append(probe.take())
-        else:
-            print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
-                  file=sys.stderr)
-    except BaseException as exc:  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
-        if not stopped_by_signal(exc):
-            raise
+        with until_stop_signal():  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
+            if spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC], FIRST_ESTIMATE_TIMEOUT_S):
+                spin_until(probe, lambda: False, args.settle)
+                probe.take()
+                for _ in range(args.windows):
+                    spin_until(probe, lambda: False, args.window)
+                    windows.append(probe.take())
+            else:
+                print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
+                      file=sys.stderr)
     finally:
         codes = stop_nodes(processes)
         probe.destroy_node()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
@@ -13,3 +15,14 @@ def stopped_by_signal(error: BaseException) -> bool:
     spin_once) then fails with "context is invalid" instead."""
     return isinstance(error, (KeyboardInterrupt, ExternalShutdownException)) or (isinstance(error, Exception)
                                                                                  and not rclpy.ok())
+
+
+@contextlib.contextmanager
+def until_stop_signal():
+    """Run the block until a Ctrl-C or SIGTERM stops it: that stop (`stopped_by_signal`) ends the block quietly, and
+    the code after it runs (a summary, a bag's close); any other error passes."""
+    try:
+        yield
+    except (KeyboardInterrupt, Exception) as exc:
+        if not stopped_by_signal(exc):
+            raise
