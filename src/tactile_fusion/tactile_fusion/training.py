@@ -372,8 +372,8 @@ def train_phases(model: ForceFusionNet, train: FrameSet, val: FrameSet, config: 
 
     With `config.head_cycles` > 1 the head phase and the fit run again, each further cycle from the fit before it,
     with a new cosine schedule and a newly drawn imperfect copy (seed + cycle - 1); its results get the suffix
-    "_<cycle>". Measured after 13 end-to-end epochs (docs/learning.md): one, two, three and four cycles of 30 epochs
-    reached 3.25, 3.04, 2.90 and 2.82 mN per bin, 45 epochs in a row 3.15.
+    "_<cycle>". Measured after 13 end-to-end epochs (docs/learning_history.md): one, two, three and four cycles of 30
+    epochs reached 3.25, 3.04, 2.90 and 2.82 mN per bin, 45 epochs in a row 3.15.
 
     The head phase keeps its last epoch and the cycle as a whole is judged after its fit: the model goes on with the
     cycle only if its validation RMSE, fitted, beats the model's before the cycle (the end-to-end result, or the
