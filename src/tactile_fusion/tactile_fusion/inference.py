@@ -77,14 +77,15 @@ class ForcePredictor:
         return self._finite(self._run(self._masked(images, reference, camera_ok, camera_ids), reference))
 
     def _masked(self, images: np.ndarray, reference: np.ndarray, camera_ok, camera_ids) -> np.ndarray:
-        """Images (in the model's camera order), each camera marked not ok shown at rest (`camera_out.rest_view`)."""
-        if camera_ok is None:
-            return images
-        ok = np.asarray(camera_ok, dtype=bool)
-        if ok.shape != images.shape[:2]:
-            raise InputError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")
-        if camera_ids is not None:
-            ok = ok[:, self._order(camera_ids)]
+        """Images (in the model's camera order), each camera marked not ok, or whose image is its reference itself,
+        shown at rest (`camera_out.with_cameras_at_rest`)."""
+        ok = None
+        if camera_ok is not None:
+            ok = np.asarray(camera_ok, dtype=bool)
+            if ok.shape != images.shape[:2]:
+                raise InputError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")
+            if camera_ids is not None:
+                ok = ok[:, self._order(camera_ids)]
         return with_cameras_at_rest(images, reference, ok)
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:

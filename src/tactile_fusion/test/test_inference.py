@@ -18,7 +18,7 @@ from tactile_fusion.artifacts import (
     load_model,
     save_model,
 )
-from tactile_fusion.camera_out import rest_view
+from tactile_fusion.camera_out import rest_view, with_cameras_at_rest
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
 from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig
@@ -130,6 +130,27 @@ def test_a_camera_marked_broken_is_shown_at_rest(model_dir):
     np.testing.assert_array_equal(rest_view(reference), rest_view(reference.copy()))
     with pytest.raises(InputError, match="camera_ok"):
         predictor.predict_batch(frames.images[:2], reference, camera_ok=np.ones(2, dtype=bool))
+
+
+def test_a_camera_whose_image_is_its_reference_is_shown_at_rest(model_dir):
+    """A difference of exactly 0 (a still image as the source, a lens cap from start-up, a scene without noise) is
+    shown as the camera at rest, as a camera marked broken is, with or without camera_ok, in every backend path."""
+    out, frames = model_dir
+    predictor = load_predictor(out)
+    images, reference = frames.images[5].copy(), frames.reference
+    images[1] = reference[1]
+    at_rest = images.copy()
+    at_rest[1] = rest_view(reference)[1]
+    np.testing.assert_array_equal(with_cameras_at_rest(images[None], reference, None)[0], at_rest)
+    expected = predictor.predict(at_rest, reference)
+    np.testing.assert_array_equal(predictor.predict(images, reference), expected)
+    np.testing.assert_array_equal(predictor.predict(images, reference, camera_ok=np.array([True, True])), expected)
+    np.testing.assert_array_equal(predictor.predict_batch(images[None], reference)[0], expected)
+    swapped = predictor.predict(images[::-1], reference[::-1], camera_ids=CAMERAS[::-1])
+    np.testing.assert_array_equal(swapped, expected)
+    # One pixel off the reference is a frame of its own.
+    images[1, 0, 0] ^= 1
+    np.testing.assert_array_equal(with_cameras_at_rest(images[None], reference, None)[0], images)
 
 
 @pytest.mark.parametrize("backend", ["onnxruntime", "torch"])

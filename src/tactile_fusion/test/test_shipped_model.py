@@ -99,6 +99,22 @@ def test_a_camera_out_leaves_a_surface_at_rest_without_contact_and_presses_measu
         assert degraded["rmse_bin_n"][2] <= 11 * shipped_metrics["rmse_bin_n"][2], (camera, degraded)
 
 
+def test_frames_equal_to_their_reference_report_no_contact(shipped):
+    """A camera that shows its reference itself (a still image, a lens cap or an LED off since start-up, a scene
+    without noise) is shown at rest: read as a difference of exactly 0, every camera of a frame gave 1.6 N of contact
+    and one such camera beside three noisy ones at rest 0.37-0.45 N (2026-11-24)."""
+    model_dir, frames, _ = shipped
+    predictor = load_predictor(model_dir)
+    reference = frames.reference
+    for frame in (reference, np.zeros_like(reference), np.full_like(reference, 255)):
+        assert predictor.predict(frame, frame)[..., 2].sum() < CONTACT_LEVEL_N
+    at_rest = np.flatnonzero(frames.bin_forces_n[..., 2].sum(axis=(1, 2)) == 0)[:5]
+    for camera in range(len(frames.camera_ids)):
+        images = np.asarray(frames.images[at_rest]).copy()
+        images[:, camera] = reference[camera]
+        assert predictor.predict_batch(images, reference)[..., 2].sum(axis=(1, 2)).max() < CONTACT_LEVEL_N, camera
+
+
 def test_onnxruntime_equals_torch_and_reduced_precisions_stay_within_their_bounds(shipped):
     model_dir, frames, _ = shipped
     images = np.asarray(frames.images[:40])
