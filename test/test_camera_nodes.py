@@ -85,6 +85,11 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (CameraNode, {"source": "''"}, "parameter source must be a device index"),
     (SimCameraNode, {"stamp_jitter_s": ".nan"}, "parameter stamp_jitter_s must be a finite number >= 0, got nan"),
     (SimCameraNode, {"rate_hz": ".nan"}, "tactile_sim_cameras: parameter rate_hz must be a finite number > 0"),
+    # a timer of a period beyond rcl's reach failed with a pybind TypeError naming no parameter
+    (SimCameraNode, {"rate_hz": "1e-12"}, "tactile_sim_cameras: parameter rate_hz must be at least 1.15741e-05 Hz"),
+    (CameraNode, {"rate_hz": "1e-12"}, "tactile_camera: parameter rate_hz must be at least 1.15741e-05 Hz"),
+    (FusionNode, {"markers_rate_hz": "1e-12"}, "parameter markers_rate_hz must be at least 1.15741e-05 Hz (once a "
+                                               "day), got 1e-12 (to publish no markers, set publish_markers false)"),
     (FusionNode, {"threads": "0"}, "tactile_fusion: parameter threads must be a whole number >= 1, got 0"),
     (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number >= 1, got 2.5"),
 ])

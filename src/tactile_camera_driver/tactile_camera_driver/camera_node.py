@@ -29,7 +29,7 @@ from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import DYNAMIC, positive_float
+from tactile_conversions.parameters import DYNAMIC, positive_float, rate_hz
 from tactile_conversions.topics import camera_topic
 from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
@@ -65,11 +65,11 @@ class CameraNode(Node):
             raise ValueError(f"camera_id {self.camera_id!r} is not in the sensor description "
                              f"({list(sensor.camera_ids)})")
         self.camera = sensor.cameras[sensor.camera_ids.index(self.camera_id)]
-        rate_hz = positive_float(self, "rate_hz", sensor.frame_rate_hz)
+        frame_rate_hz = rate_hz(self, "rate_hz", sensor.frame_rate_hz)
         self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
         self.next_open_s = 0.0
         self.frames_published = 0
-        self.timer = self.create_timer(1.0 / rate_hz, self.grab)
+        self.timer = self.create_timer(1.0 / frame_rate_hz, self.grab)
 
     def declare_source(self) -> int | str:
         """The `source` parameter as OpenCV takes it: a device index (an integer >= 0, or a string of digits:

@@ -19,7 +19,7 @@ from sensor_msgs.msg import Image
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import positive_float
+from tactile_conversions.parameters import positive_float, rate_hz
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import FORCE_COMPONENTS, load_sensor
@@ -35,7 +35,7 @@ class SimCameraNode(Node):
         self.loop = bool(self.declare_parameter("loop", True).value)
         self.stamp_jitter_s = positive_float(self, "stamp_jitter_s", 0.002, allow_zero=True)
         self.sensor = load_sensor(sensor_config or None)
-        rate_hz = positive_float(self, "rate_hz", self.sensor.frame_rate_hz)
+        frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
         self.simulator = Simulator(self.sensor)
         self.scene = load_scene(self.scene_name, self.sensor)
         self.frames = self.simulator.stream(self.scene)
@@ -43,9 +43,9 @@ class SimCameraNode(Node):
         self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)
                            for c in self.sensor.camera_ids}
         self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
-        self.timer = self.create_timer(1.0 / rate_hz, self.publish_frame)
-        self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at {rate_hz:.1f} Hz "
-                               f"for cameras {list(self.sensor.camera_ids)}")
+        self.timer = self.create_timer(1.0 / frame_rate_hz, self.publish_frame)
+        self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at "
+                               f"{frame_rate_hz:.1f} Hz for cameras {list(self.sensor.camera_ids)}")
 
     def publish_frame(self) -> None:
         frame = next(self.frames, None)

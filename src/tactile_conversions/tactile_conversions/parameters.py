@@ -5,6 +5,10 @@ string default refuses them (InvalidParameterTypeException) and the node dies at
 parameter declared with an integer default does with `-p threads:=2.0`. Declared with `DYNAMIC`, a parameter takes
 any type, and the node checks and converts it itself. A check written `x <= 0` lets NaN through
 (every comparison with NaN is false): `positive_float` refuses NaN and infinities.
+
+A timer's period is passed to rcl as int64 nanoseconds: rclpy fails on a longer one than 292 years with a pybind
+TypeError that names no parameter (`-p camera_timeout_s:=1e12`, `-p rate_hz:=1e-12`). `period_s` and `rate_hz`, for
+the parameters a timer is built from, take at most a period of `MAX_PERIOD_S` (a day), far below that.
 """
 
 from __future__ import annotations
@@ -16,6 +20,10 @@ from tactile_description.value_checks import is_number, is_whole_number
 
 #: The descriptor of a parameter whose type the node checks and converts itself.
 DYNAMIC = ParameterDescriptor(dynamic_typing=True)
+
+#: The longest period or timeout that period_s takes, and one over the lowest rate that rate_hz takes: one day.
+MAX_PERIOD_S = 86_400.0
+MIN_RATE_HZ = 1.0 / MAX_PERIOD_S
 
 
 def positive_float(node: Node, name: str, default: float, *, allow_zero: bool = False) -> float:
@@ -39,4 +47,22 @@ def whole_number(node: Node, name: str, default: int, low: int = 1) -> int:
     value = node.declare_parameter(name, default, DYNAMIC).value
     if not is_whole_number(value, low):
         raise ValueError(f"{node.get_name()}: parameter {name} must be a whole number >= {low}, got {value!r}")
+    return value
+
+
+def period_s(node: Node, name: str, default: float) -> float:
+    """positive_float for a period or timeout that a timer is built from: also at most MAX_PERIOD_S."""
+    value = positive_float(node, name, default)
+    if value > MAX_PERIOD_S:
+        raise ValueError(f"{node.get_name()}: parameter {name} must be at most {MAX_PERIOD_S:g} s (one day), "
+                         f"got {value!r}")
+    return value
+
+
+def rate_hz(node: Node, name: str, default: float) -> float:
+    """positive_float for a rate that a timer's period (its inverse) is built from: also at least MIN_RATE_HZ."""
+    value = positive_float(node, name, default)
+    if value < MIN_RATE_HZ:
+        raise ValueError(f"{node.get_name()}: parameter {name} must be at least {MIN_RATE_HZ:.6g} Hz (once a day), "
+                         f"got {value!r}")
     return value

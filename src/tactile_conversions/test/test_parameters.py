@@ -1,4 +1,5 @@
-"""positive_float and whole_number on real rclpy nodes, with the values a command line gives (no DDS traffic)."""
+"""positive_float, period_s, rate_hz and whole_number on real rclpy nodes, with the values a command line gives
+(no DDS traffic)."""
 
 import math
 
@@ -7,7 +8,7 @@ import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from tactile_conversions.parameters import positive_float, whole_number
+from tactile_conversions.parameters import MAX_PERIOD_S, MIN_RATE_HZ, period_s, positive_float, rate_hz, whole_number
 
 
 @pytest.fixture
@@ -50,6 +51,29 @@ def test_numbers_are_taken_as_floats(node_with, value, allow_zero, expected):
 def test_anything_else_is_refused_naming_the_parameter(node_with, value, allow_zero, message):
     with pytest.raises(ValueError) as refused:
         positive_float(node_with(value), "period_s", 0.5, allow_zero=allow_zero)
+    assert message in str(refused.value)
+
+
+def test_a_period_of_up_to_a_day_and_a_rate_of_at_least_once_a_day_make_a_timer(node_with):
+    node = node_with(MAX_PERIOD_S)
+    assert period_s(node, "period_s", 0.5) == MAX_PERIOD_S
+    assert node.create_timer(MAX_PERIOD_S, lambda: None).timer_period_ns == 86_400 * 10**9
+    node = node_with(MIN_RATE_HZ)
+    assert node.create_timer(1.0 / rate_hz(node, "period_s", 40.0), lambda: None).timer_period_ns == 86_400 * 10**9
+    assert rate_hz(node_with(30), "period_s", 40.0) == 30.0
+
+
+@pytest.mark.parametrize("helper, value, message", [
+    (period_s, 1e12, "parameters_test: parameter period_s must be at most 86400 s (one day), got 1000000000000.0"),
+    (period_s, 86_401, "parameter period_s must be at most 86400 s (one day), got 86401"),
+    (period_s, math.nan, "parameter period_s must be a finite number > 0, got nan"),
+    (rate_hz, 1e-12, "parameters_test: parameter period_s must be at least 1.15741e-05 Hz (once a day), got 1e-12"),
+    (rate_hz, 0, "parameter period_s must be a finite number > 0, got 0"),
+])
+def test_a_period_a_timer_cannot_take_is_refused_naming_the_parameter(node_with, helper, value, message):
+    """rclpy's create_timer fails on these with a TypeError naming no parameter (a period past int64 nanoseconds)."""
+    with pytest.raises(ValueError) as refused:
+        helper(node_with(value), "period_s", 0.5)
     assert message in str(refused.value)
 
 

@@ -1,7 +1,9 @@
+import math
+
 import pytest
 from builtin_interfaces.msg import Time
 
-from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
+from tactile_conversions.ros_time import TIME_LIMIT_S, is_ros_time, seconds_to_time, time_to_seconds
 
 
 def test_roundtrip_keeps_microseconds_at_epoch_scale():
@@ -17,3 +19,21 @@ def test_nanoseconds_carry_into_seconds():
 def test_negative_times_are_rejected():
     with pytest.raises(ValueError, match="cannot be negative"):
         seconds_to_time(-0.1)
+
+
+def test_a_time_past_what_sec_can_hold_is_rejected_not_wrapped_round():
+    """rclpy does not check sec's range: Time(sec=2**31) goes out as sec=-2**31."""
+    latest = Time(sec=2**31 - 1, nanosec=999_999_000)
+    assert seconds_to_time(time_to_seconds(latest)).sec == 2**31 - 1
+    last_ns = time_to_seconds(Time(sec=2**31 - 1, nanosec=999_999_999))  # a float: 2**31 exactly
+    assert not is_ros_time(last_ns)
+    for seconds in (last_ns, TIME_LIMIT_S, 1e12, math.inf, math.nan):
+        with pytest.raises(ValueError, match="must be a finite number below 2\\*\\*31 s"):
+            seconds_to_time(seconds)
+
+
+@pytest.mark.parametrize("seconds, expected", [(0.0, True), (-4e-10, True), (1_763_700_000.5, True), (-1e-9, False),
+                                               (-5.0, False), (2.0**31, False), (math.nan, False)])
+def test_is_ros_time_is_what_seconds_to_time_takes(seconds, expected):
+    """-4e-10 s rounds to 0 ns, as seconds_to_time rounds it."""
+    assert is_ros_time(seconds) == expected

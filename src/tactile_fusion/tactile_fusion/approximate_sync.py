@@ -66,7 +66,9 @@ class SyncCounters:
     - queue_overflow: the oldest of a full queue;
     - too_wide: the oldest head, when the tightest bundle holding the pivot was wider than `max_spread_s`;
     - superseded: older than a stream's message in the bundle emitted, so it cannot be in a later bundle;
-    - reset: still queued when the synchroniser reset (a stream's stamps jumped back, or the caller called reset).
+    - reset: still queued when the synchroniser reset (a stream's stamps jumped back, or the caller called reset);
+    - bad_stamp: never given to the synchroniser, stamped with a time the caller's output cannot carry (bundle_node
+      counts these here, a negative ROS time for one, so that one report holds every image it dropped).
     """
 
     out_of_order: int = 0
@@ -74,6 +76,7 @@ class SyncCounters:
     too_wide: int = 0
     superseded: int = 0
     reset: int = 0
+    bad_stamp: int = 0
     per_stream: dict[str, int] = field(default_factory=dict)
 
     def by_reason(self) -> dict[str, int]:

@@ -12,6 +12,10 @@ every `DROP_LOG_PERIOD_S` at most while it goes on, and when the node stops. A c
 more than two frame periods (a bag replay that loops, a clock set back, a restarted camera) makes the
 synchroniser start over from the new stamps, with a warning; without that, every later image would be dropped as
 out of order until the stamps passed the old ones again.
+
+An image whose stamp no bundle can carry (`ros_time.is_ros_time`: a negative `sec`, legal in a message, or one past
+2**31 s) is dropped before it reaches the synchroniser, counted as `bad_stamp` and logged every `DROP_LOG_PERIOD_S` at
+most; it does not count as a sign of life of its camera, so a camera that sends only such images is left out.
 """
 
 from __future__ import annotations
@@ -25,8 +29,8 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import positive_float, whole_number
-from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
+from tactile_conversions.parameters import period_s, positive_float, whole_number
+from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_description import load_sensor
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
@@ -48,7 +52,7 @@ class BundleNode(Node):
         self.max_spread_s = positive_float(self, "max_spread_s", defaults["max_spread_s"])
         self.queue_size = whole_number(self, "queue_size", defaults["queue_size"])
         self.min_period_s = positive_float(self, "min_period_s", defaults["min_period_s"], allow_zero=True)
-        self.camera_timeout_s = positive_float(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
+        self.camera_timeout_s = period_s(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
         self.restart_jump_s = defaults["restart_jump_s"]
         self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
         self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
@@ -72,6 +76,10 @@ class BundleNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_image(self, camera_id: str, msg: Image) -> None:
+        stamp_s = time_to_seconds(msg.header.stamp)
+        if not is_ros_time(stamp_s):
+            self.drop_bad_stamp(camera_id, msg)
+            return
         now = self.now_s()
         if not self.live_cameras:
             # First image since start-up (or since every camera fell silent): give every camera one timeout to
@@ -82,9 +90,20 @@ class BundleNode(Node):
             self.check_cameras()
         if self.sync is None or camera_id not in self.live_cameras:
             return
-        for bundle in self.sync.add(camera_id, time_to_seconds(msg.header.stamp), msg):
+        for bundle in self.sync.add(camera_id, stamp_s, msg):
             self.publisher.publish(self.to_msg(bundle, self.sequence))
             self.sequence += 1
+
+    def drop_bad_stamp(self, camera_id: str, msg: Image) -> None:
+        """Count and log an image whose stamp no bundle could carry: the bundle's stamp (their median) is written
+        back into a Time, which would fail (negative) or wrap round to a negative `sec` (2**31 s or later)."""
+        self.dropped.bad_stamp += 1
+        self.dropped.per_stream[camera_id] = self.dropped.per_stream.get(camera_id, 0) + 1
+        stamp = msg.header.stamp
+        self.get_logger().warning(
+            f"{camera_id}: dropped an image stamped sec={stamp.sec} nanosec={stamp.nanosec}: a bundle's stamp must "
+            f"lie in [0, 2**31) s; {self.dropped.bad_stamp} such image(s) since start",
+            throttle_duration_sec=DROP_LOG_PERIOD_S)
 
     def check_cameras(self) -> None:
         """Rebuild the synchroniser when the set of cameras that send images changes."""

@@ -40,7 +40,7 @@ from visualization_msgs.msg import MarkerArray
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import positive_float, whole_number
+from tactile_conversions.parameters import rate_hz, whole_number
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components, load_sensor
@@ -70,7 +70,7 @@ class FusionNode(Node):
         reference_bundles = whole_number(self, "reference_bundles", REFERENCE_BUNDLES)
         self.publish_markers = bool(self.declare_parameter("publish_markers", True).value)
         try:
-            markers_rate_hz = positive_float(self, "markers_rate_hz", MARKERS_RATE_HZ)
+            markers_rate_hz = rate_hz(self, "markers_rate_hz", MARKERS_RATE_HZ)
         except ValueError as exc:
             raise ValueError(f"{exc} (to publish no markers, set publish_markers false)") from exc
         self.markers_period_s = 1.0 / markers_rate_hz

@@ -1,0 +1,110 @@
+"""The bundle node in this process (real rclpy and DDS): images are handed to its image callback, its bundles come
+back through a subscription, its log through stderr. The parameters and the drop reports: test/test_camera_nodes.py."""
+
+import os
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from builtin_interfaces.msg import Time
+
+from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
+from tactile_conversions.topics import BUNDLE_TOPIC
+from tactile_fusion.bundle_node import BundleNode
+from tactile_msgs.msg import ImageBundle
+
+CAMERAS = ("cam0", "cam1", "cam2", "cam3")
+PERIOD_S = 0.025  # the default sensor's 40 Hz
+
+
+@pytest.fixture
+def bundler(monkeypatch):
+    """bundler(*ros_args): a BundleNode for the default sensor, and the list its bundles arrive in."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 70) % 80))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    nodes = []
+
+    def make(*ros_args: str):
+        rclpy.init(args=["--ros-args", *ros_args])
+        nodes.append(BundleNode())
+        bundles: list[ImageBundle] = []
+        nodes[-1].create_subscription(ImageBundle, BUNDLE_TOPIC, bundles.append, 100)
+        assert spin_until(nodes[-1], lambda: nodes[-1].publisher.get_subscription_count() > 0)
+        return nodes[-1], bundles
+
+    yield make
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def spin_until(node, condition, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return bool(condition())
+
+
+def send(node, stamps, cameras=CAMERAS) -> None:
+    """One image of each camera per stamp, camera by camera, through the node's image callback."""
+    for stamp in stamps:
+        for camera_id in cameras:
+            image = stamp if isinstance(stamp, Time) else seconds_to_time(stamp)
+            node.on_image(camera_id, mono8_to_msg(np.zeros((128, 128), np.uint8), image, f"{camera_id}_optical"))
+
+
+@pytest.mark.parametrize("bad", [
+    Time(sec=-5),                                  # the reporter's: the node died in to_msg
+    Time(sec=-1, nanosec=999_999_999),             # 1 ns before 1970
+    Time(sec=2**31 - 1, nanosec=999_999_999),      # rounds to 2**31 s: the bundle went out stamped sec=-2**31
+])
+def test_an_image_whose_stamp_no_bundle_can_carry_is_dropped_counted_and_logged_and_the_node_goes_on(
+        bundler, capfd, bad):
+    node, bundles = bundler()
+    send(node, [bad] * 10)
+    assert node.dropped.bad_stamp == 40 and node.sequence == 0  # never bundled
+    assert node.live_cameras == ()  # not a sign of life: no synchroniser was started for them
+    err = capfd.readouterr().err
+    assert err.count(f"cam0: dropped an image stamped sec={bad.sec} nanosec={bad.nanosec}: a bundle's stamp must "
+                     "lie in [0, 2**31) s; 1 such image(s) since start") == 1
+    assert err.count("such image(s) since start") == 1  # throttled like the other drop logs
+    send(node, [100.0 + k * PERIOD_S for k in range(10)])
+    assert spin_until(node, lambda: len(bundles) >= 8)
+    assert [b.sequence for b in bundles] == list(range(len(bundles)))
+    assert all(100.0 <= time_to_seconds(b.header.stamp) < 100.3 for b in bundles)
+    node.report_drops()
+    assert "dropped 40 image(s) (bad_stamp 40; cam0 10, cam1 10, cam2 10, cam3 10), 40 since start" \
+        in capfd.readouterr().err
+
+
+def test_a_camera_that_sends_only_stamps_no_bundle_can_carry_is_left_out_like_a_silent_one(bundler, capfd):
+    node, bundles = bundler("-p", "camera_timeout_s:=0.5")
+    for k in range(6):
+        send(node, [100.0 + k * PERIOD_S], CAMERAS[:3])
+        send(node, [Time(sec=-5)], CAMERAS[3:])
+        time.sleep(0.12)
+    assert node.sequence == 0  # the synchroniser waited for cam3 during its first timeout
+    node.check_cameras()  # the node's timer does this every camera_timeout_s / 2
+    assert node.live_cameras == CAMERAS[:3]
+    assert "no images from ['cam3'] for 0.50 s" in capfd.readouterr().err
+    send(node, [101.0 + k * PERIOD_S for k in range(4)], CAMERAS[:3])
+    assert spin_until(node, lambda: len(bundles) >= 3)
+    assert all(list(b.camera_ids) == list(CAMERAS[:3]) for b in bundles)
+
+
+@pytest.mark.parametrize(("value", "accepted"), [("86400", True), ("1e12", False)])
+def test_a_camera_timeout_longer_than_a_day_is_refused_naming_the_parameter(monkeypatch, value, accepted):
+    """Half of it is the period of a timer: 1e12 s made create_timer fail with a TypeError naming no parameter."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 70) % 80))
+    rclpy.init(args=["--ros-args", "-p", f"camera_timeout_s:={value}"])
+    try:
+        if accepted:
+            BundleNode().destroy_node()
+        else:
+            with pytest.raises(ValueError, match="tactile_bundle: parameter camera_timeout_s must be at most 86400 s "
+                                                 r"\(one day\), got 1000000000000.0"):
+                BundleNode()
+    finally:
+        rclpy.try_shutdown()
