@@ -22,11 +22,19 @@ from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterEr
 from tactile_bag.mcap_crcs import McapError, fill_mcap_crcs
 from tactile_bag.message_types import MessageTypeError, add_types, bag_typestore
 
+try:
+    from compression.zstd import ZstdError  # Python 3.14
+except ImportError:
+    from backports.zstd import ZstdError  # the zstd module rosbags uses before 3.14
+
 #: rosbag2 metadata version written (Kilted's; `ros2 bag` of Jazzy and later reads it).
 BAG_VERSION = 9
 
-#: What rosbags' readers raise on a damaged bag (bad magic, truncated chunk, lengths out of range, bad YAML).
-DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error)
+#: What rosbags' readers raise on a damaged bag (bad magic, truncated chunk, lengths out of range, bad YAML), and on a
+#: zstd-compressed one (rosbag2's FILE or MESSAGE compression, zstd MCAP chunks) whose compressed bytes are cut short
+#: (EOFError) or are not zstd (ZstdError, e.g. metadata that claims zstd over a plain .mcap).
+DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error, EOFError,
+                      ZstdError)
 
 
 class BagError(ValueError):

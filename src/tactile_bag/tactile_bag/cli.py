@@ -19,7 +19,7 @@ from pathlib import Path
 import rclpy
 
 from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, evaluate_bag
-from tactile_bag.play import play
+from tactile_bag.play import MIN_RATE, play
 from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.stop_signals import stopped_by_signal
@@ -153,8 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ply = sub.add_parser("play", help="republish a bag's messages with their recorded timing")
     ply.add_argument("bag", help="bag directory")
-    ply.add_argument("--rate", type=number_argument(0.0, "times the recorded speed"), default=1.0,
-                     help="speed factor (default 1: as recorded)")
+    ply.add_argument("--rate", type=number_argument(MIN_RATE, "times the recorded speed", inclusive=True), default=1.0,
+                     help=f"speed factor, at least {MIN_RATE:g} (default 1: as recorded)")
     ply.add_argument("--loop", action="store_true", help="start over at the end, until Ctrl-C")
     ply.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all)")
     ply.add_argument("--wait-subscribers", type=number_argument(0.0, "seconds", inclusive=True), default=1.0,

@@ -20,6 +20,15 @@ from tactile_bag.topics import absolute_topic, qos_profile
 from tactile_conversions.stop_signals import until_stop_signal
 from tactile_description.value_checks import is_number
 
+#: The slowest replay, in times the recorded speed: a 25 ms frame period becomes 25 s. Slower would stretch a gap of
+#: the bag's to where waiting it out is pointless (at 1e-300, beyond what time.sleep takes: OverflowError).
+MIN_RATE = 1e-3
+
+#: The longest single sleep while waiting for a message's time: a SIGTERM, which shuts rclpy down without waking the
+#: sleep, stops the replay within it, and a wait beyond what one time.sleep takes (about 292 years: a gap of 106
+#: days in the bag at MIN_RATE) is slept in pieces instead of raising OverflowError.
+MAX_SLEEP_S = 0.25
+
 
 def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequence[str] | None = None,
          wait_subscribers_s: float = 1.0) -> dict[str, int]:
@@ -30,8 +39,8 @@ def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequen
     sooner once every replayed topic has a matched subscriber.
     rclpy must be initialised by the caller. Ctrl-C stops the replay.
     """
-    if not (is_number(rate) and rate > 0):
-        raise ValueError(f"--rate must be a finite number > 0, got {rate!r}")
+    if not (is_number(rate) and rate >= MIN_RATE):
+        raise ValueError(f"--rate must be a finite number >= {MIN_RATE:g}, got {rate!r}")
     if not (is_number(wait_subscribers_s) and wait_subscribers_s >= 0):
         raise ValueError(f"--wait-subscribers must be a finite number >= 0 s, got {wait_subscribers_s!r}")
     with BagReader(path) as bag:
@@ -70,9 +79,8 @@ def _play_once(bag: BagReader, topics: list[str], publishers: dict, counts: dict
         if first_ns is None:
             first_ns = time_ns
         due = start_wall + (time_ns - first_ns) * 1e-9 / rate
-        delay = due - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+        while rclpy.ok() and (delay := due - time.monotonic()) > 0:
+            time.sleep(min(delay, MAX_SLEEP_S))
         if not rclpy.ok():
             return False
         publishers[topic].publish(raw)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from backports import zstd
 from rclpy.serialization import serialize_message
 from rosbags.typesys import get_types_from_msg
 
@@ -112,6 +113,44 @@ def flipped_pixels_bag(sim_bag, sim_frames, tmp_path):
     data[at:at + 64] = bytes(255 - b for b in data[at:at + 64])
     mcap.write_bytes(bytes(data))
     return bag
+
+
+def zstd_file_metadata(source: Path, target: Path, compressed_name: str | None = None) -> None:
+    """Write into `target` the metadata.yaml of the bag `source` as rosbag2's FILE compression (zstd) writes it, its
+    .mcap named as `compressed_name` (default: as it is)."""
+    mcap_name = next(source.glob("*.mcap")).name
+    metadata = (source / "metadata.yaml").read_text()
+    for key, value in (("compression_format", "zstd"), ("compression_mode", "FILE")):
+        assert f"{key}: ''" in metadata
+        metadata = metadata.replace(f"{key}: ''", f"{key}: {value}")
+    (target / "metadata.yaml").write_text(metadata.replace(mcap_name, compressed_name or mcap_name))
+
+
+@pytest.fixture
+def zstd_file_bag(sim_bag, tmp_path):
+    """sim_bag as `ros2 bag record --compression-mode file --compression-format zstd` leaves it: the .mcap file
+    compressed whole into .mcap.zstd (a zstd frame), which metadata.yaml names, with compression FILE zstd."""
+    bag = tmp_path / "zstd_file"
+    bag.mkdir()
+    mcap = next(sim_bag.glob("*.mcap"))
+    (bag / f"{mcap.name}.zstd").write_bytes(zstd.compress(mcap.read_bytes()))
+    zstd_file_metadata(sim_bag, bag, f"{mcap.name}.zstd")
+    return bag
+
+
+@pytest.fixture(params=["truncated", "plain_mcap_said_zstd"])
+def damaged_zstd_file_bag(request, zstd_file_bag, sim_bag, tmp_path):
+    """(bag, what rosbags says): zstd_file_bag with its .mcap.zstd cut to half (a copy broken off), or a copy of
+    sim_bag whose metadata.yaml claims FILE zstd compression over its plain .mcap."""
+    if request.param == "truncated":
+        compressed = next(zstd_file_bag.glob("*.mcap.zstd"))
+        compressed.write_bytes(compressed.read_bytes()[: compressed.stat().st_size // 2])
+        return zstd_file_bag, "Compressed file ended before the end-of-stream marker was reached"
+    bag = tmp_path / "plain_said_zstd"
+    bag.mkdir()
+    shutil.copy(next(sim_bag.glob("*.mcap")), bag)
+    zstd_file_metadata(sim_bag, bag)
+    return bag, "Unable to decompress Zstandard data: Unknown frame descriptor"
 
 
 @pytest.fixture(scope="session")

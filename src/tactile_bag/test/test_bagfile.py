@@ -124,6 +124,40 @@ def test_truncated_bag(sim_bag, tmp_path):
         BagReader(bag)
 
 
+def test_a_file_compressed_bag_reads_back(zstd_file_bag, sim_bag):
+    """rosbag2's FILE compression (the whole .mcap as one zstd frame), which rosbags decompresses when it opens it."""
+    with BagReader(zstd_file_bag) as compressed, BagReader(sim_bag) as plain:
+        assert list(compressed.messages()) == list(plain.messages())
+
+
+def test_a_damaged_file_compressed_bag_is_refused(damaged_zstd_file_bag):
+    """Cut short (EOFError) or not zstd at all (ZstdError): the one-line BagError that names the bag, not rosbags'
+    exception (before: EOFError's or ZstdError's traceback)."""
+    bag, reason = damaged_zstd_file_bag
+    with pytest.raises(BagError, match=rf"^bag {bag} cannot be opened \({reason}\); expected a rosbag2 directory"):
+        BagReader(bag)
+
+
+def test_a_zstd_chunk_that_does_not_decompress_is_refused(tmp_path):
+    """A zstd-compressed MCAP chunk (ros2 bag's default storage preset writes them) whose zstd frame is damaged: the
+    error comes from decompressing it, when its messages are read."""
+    mcap = rosbags_bag(tmp_path / "bag", messages=100, compression=True)
+    reader = McapReader(mcap)
+    reader.open()
+    chunk = reader.chunks[1]
+    reader.close()
+    assert chunk.compression == "zstd"
+    data = bytearray(mcap.read_bytes())
+    frame_at = chunk.chunk_start_offset + 9 + 40 + len("zstd")
+    assert data[frame_at:frame_at + 4] == b"\x28\xb5\x2f\xfd"
+    data[frame_at:frame_at + 4] = bytes(4)  # the zstd frame's magic number
+    mcap.write_bytes(bytes(data))
+    with BagReader(tmp_path / "bag") as bag, \
+            pytest.raises(BagError, match=rf"^bag {tmp_path / 'bag'} is damaged: reading its messages failed \(Unable "
+                                          r"to decompress Zstandard data: Unknown frame descriptor\)$"):
+        list(bag.messages())
+
+
 def stored_crcs(mcap: Path) -> tuple[list[tuple[int, int]], tuple[int, int], tuple[int, int]]:
     """([(stored CRC, CRC-32 of the records) of every chunk], (stored, computed) data-section CRC, (stored, computed)
     summary CRC) of an MCAP file with uncompressed chunks. The chunks are found through rosbags' reading of the

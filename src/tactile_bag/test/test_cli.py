@@ -10,9 +10,14 @@ import time
 import pytest
 import rclpy
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import Image
 
+from tactile_bag.bagfile import BagWriter
 from tactile_bag.cli import main
+from tactile_bag.play import play
 from tactile_bag.record import record
+from tactile_bag.topics import IMAGE_TYPE
 
 
 @pytest.fixture(autouse=True)
@@ -59,8 +64,10 @@ def test_play_and_eval_refuse_a_bag_whose_bytes_changed(flipped_pixels_bag, mode
 
 
 @pytest.mark.parametrize("args, message", [
-    (["play", "BAG", "--rate", "0"], "argument --rate: must be a finite number of times the recorded speed > 0, "
-                                     "got '0'"),
+    (["play", "BAG", "--rate", "0"], "argument --rate: must be a finite number of times the recorded speed >= "
+                                     "0.001, got '0'"),
+    (["play", "BAG", "--rate", "1e-300", "--wait-subscribers", "0"], "argument --rate: must be a finite number of "
+                                                                     "times the recorded speed >= 0.001, got '1e-300'"),
     (["play", "BAG", "--rate", "nan"], "argument --rate: must be a finite number"),
     (["play", "BAG", "--wait-subscribers", "inf"], "argument --wait-subscribers: must be a finite number of seconds "
                                                    ">= 0, got 'inf'"),
@@ -78,6 +85,54 @@ def test_bad_numbers_are_refused_before_anything_runs(sim_bag, tmp_path, capsys,
     err = capsys.readouterr().err.strip().splitlines()  # argparse's usage, then the error
     assert stopped.value.code == 2 and message in err[-1]
     assert not (tmp_path / "new_bag").exists()
+
+
+def test_play_and_eval_refuse_a_damaged_file_compressed_bag(damaged_zstd_file_bag, model_dir, capsys):
+    """A zstd-compressed .mcap cut short, or metadata that claims zstd over a plain .mcap: one line, exit status 2
+    (before: EOFError's or ZstdError's traceback, exit status 1)."""
+    bag, reason = damaged_zstd_file_bag
+    for command in (["play", str(bag), "--wait-subscribers", "0"],
+                    ["eval", str(bag), "--model", str(model_dir), "--backend", "torch"]):
+        assert main(command) == 2
+        expected = f"tactile-bag {command[0]}: error: bag {bag} cannot be opened ({reason}); expected a rosbag2 "
+        assert error_line(capsys).startswith(expected)
+
+
+def test_play_itself_refuses_a_rate_below_the_slowest(sim_bag):
+    """At --rate 1e-300 the bag's 25 ms frame period became a sleep beyond what time.sleep takes (OverflowError)."""
+    with pytest.raises(ValueError, match=r"--rate must be a finite number >= 0\.001, got 1e-300"):
+        play(sim_bag, rate=1e-300)
+
+
+def test_play_stops_on_sigterm_during_a_long_gap(tmp_path):
+    """A message 10^7 s (116 days) after the first, played at the slowest rate: the wait of 10^10 s, beyond one
+    time.sleep (before: OverflowError), is slept in pieces, and SIGTERM, which does not wake a sleep, ends it within
+    one (with a single sleep it would have waited out the gap)."""
+    image = serialize_message(Image(height=1, width=1, encoding="mono8", step=1, data=[7]))
+    with BagWriter(tmp_path / "bag") as bag:
+        for time_ns in (1_700_000_000 * 10**9, 1_710_000_000 * 10**9):
+            bag.write("/tactile/cam0/image", IMAGE_TYPE, time_ns, image)
+    args = ["tactile-bag", "play", str(tmp_path / "bag"), "--rate", "0.001", "--wait-subscribers", "0"]
+    rclpy.init()
+    probe = Node("play_gap_probe")
+    player = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30.0
+        while not probe.count_publishers("/tactile/cam0/image") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        player.send_signal(signal.SIGTERM)
+        stopped_at = time.monotonic()
+        out, err = player.communicate(timeout=30)
+        stopped_s = time.monotonic() - stopped_at
+    finally:
+        if player.poll() is None:
+            player.kill()
+            player.communicate()
+        probe.destroy_node()
+        rclpy.try_shutdown()
+    assert player.returncode == 0 and "Traceback" not in err, err
+    assert out.startswith("played 1 messages ") and stopped_s < 5.0, (out, stopped_s)
 
 
 @pytest.mark.parametrize("duration_s, wait_s", [(math.nan, 1.0), (1.0, math.inf), (0.0, 1.0)])
