@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import pickle
+from collections.abc import Mapping
 from pathlib import Path
 
 import torch
@@ -105,7 +106,7 @@ def read_model_json(model_dir: str | Path) -> dict:
                              "`tactile-fusion train --out DIR` or give the directory of a trained model")
     description = read_json_object(path, REPLACE_MODEL)
     if description.get("format_version") != FORMAT_VERSION:
-        raise ModelFileError(f"{path}: format_version {description.get('format_version')} is not "
+        raise ModelFileError(f"{path}: format_version {description.get('format_version')!r} is not "
                              f"{FORMAT_VERSION}; retrain the model with this version of tactile_fusion")
     problem = _description_problem(description)
     if problem:
@@ -168,9 +169,12 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")
     try:
-        model.load_state_dict(torch.load(state_path, map_location="cpu", weights_only=True))
-    except (RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        reason = " ".join(str(exc).split())
+        state = torch.load(state_path, map_location="cpu", weights_only=True)
+        if not isinstance(state, Mapping):  # load_state_dict's TypeError would not say which file
+            raise RuntimeError(f"it holds a {type(state).__name__}, not a state dict")
+        model.load_state_dict(state)
+    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError) as exc:  # OSError: a directory, unreadable
+        reason = " ".join(str(exc).split()) or type(exc).__name__  # an empty file: a bare EOFError
         raise ModelFileError(f"{state_path} cannot be read or does not fit {MODEL_JSON} ({reason}): the file is "
                              f"damaged or of another model; {REPLACE_MODEL}") from exc
     return model.eval()

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_description.value_checks import is_whole_number
+from tactile_description.value_checks import is_number, is_whole_number
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ModelFileError,
@@ -33,6 +33,8 @@ from tactile_fusion.inference import BACKENDS, load_predictor
 BASELINE = "onnxruntime_fp32"
 #: Blocks per backend; each backend's timed calls are spread over this many turns.
 ROUNDS = 5
+#: Figures of a backend that its metrics.json entry may leave out (or give as null).
+OPTIONAL_FIGURES = ("max_abs_deviation_from_torch_fp32_n", "frames")
 
 
 def synthetic_frame(camera_count: int, image_size: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -58,7 +60,8 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
     """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n, frames}}, stale) from
     the model directory's metrics.json, for the backends and precisions there are now: the entries whose file is
     still the one measured, and the keys of those whose file changed since (or has no recorded SHA-256).
-    ({}, []) without metrics.json; ModelFileError for a metrics.json that is damaged or lacks figures."""
+    ({}, []) without metrics.json; ModelFileError for a metrics.json that is damaged, lacks figures or has figures that
+    are not numbers."""
     path = model_dir / METRICS_JSON
     if not path.exists():
         return {}, []
@@ -83,6 +86,10 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
                              "frames": entry.get("frames")}
         except (KeyError, IndexError, TypeError) as exc:
             raise ModelFileError(f"{path}: the figures of {key} are incomplete ({exc!r}); {remedy}") from exc
+        wrong = {name: value for name, value in accuracy[key].items()
+                 if not (is_number(value) or (value is None and name in OPTIONAL_FIGURES))}
+        if wrong:
+            raise ModelFileError(f"{path}: the figures of {key} must be numbers, got {wrong}; {remedy}")
     return accuracy, stale
 
 

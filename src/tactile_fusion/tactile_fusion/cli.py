@@ -20,6 +20,7 @@ import json
 import os
 import shlex
 import sys
+import tempfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -176,6 +177,19 @@ def _eval_sets(args, sensor, model_dir: Path) -> list[tuple[str, object]]:
     return sets
 
 
+def _output_dir(path: str) -> Path:
+    """--out: the directory, created if need be and tried with a file, so that one that cannot be written is refused
+    before anything is evaluated (SettingsError naming it)."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=out).close()
+    except OSError as exc:
+        raise SettingsError(f"--out {path} cannot be written to as a directory ({exc.strerror or exc}: "
+                            f"{exc.filename or path}); give a directory that can be created and written to") from exc
+    return out
+
+
 def cmd_eval(args) -> int:
     from tactile_fusion.artifacts import write_json
     from tactile_fusion.evaluation import evaluate
@@ -186,23 +200,23 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
     check_model_fits(predictor, sensor)
+    out = _output_dir(args.out) if args.out else None
     results = {}
     for name, frames in _eval_sets(args, sensor, model_dir):
         metrics, predicted = evaluate(predictor, frames, progress=not (args.json or args.quiet))
         metrics["contact"] = contact_metrics(predicted, frames.bin_forces_n, sensor.grid.bin_centers_m(),
                                              args.contact_level)
         results[name] = metrics
-        if args.out:
+        if out:
             slug = name.replace(" ", "_").replace("/", "_").replace("(", "").replace(")", "")
-            plot_fz_maps(frames.bin_forces_n, predicted, Path(args.out) / f"fz_map_{slug}.png",
+            plot_fz_maps(frames.bin_forces_n, predicted, out / f"fz_map_{slug}.png",
                          f"{name}: Fz per bin ({args.backend} {args.precision})",
                          bin_size_mm=grid_bin_size_mm(sensor.grid))
     first = next(iter(results.values()))
     report = {"rmse_bin_n": first["rmse_bin_n"], "rmse_total_n": first["rmse_total_n"],
               "model": str(model_dir), "backend": args.backend, "precision": args.precision, "data_sets": results}
-    if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        write_json(Path(args.out) / "metrics.json", report)
+    if out:
+        write_json(out / "metrics.json", report)
     if args.json:
         print(json.dumps(report))
     else:

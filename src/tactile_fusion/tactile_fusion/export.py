@@ -11,9 +11,11 @@ of uint8 differences wrong. Each graph also names, in its metadata, the Fz thres
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import io
 import json
+import os
 import warnings
 from pathlib import Path
 
@@ -21,6 +23,7 @@ import onnx
 import torch
 from torch import nn
 
+from tactile_fusion.artifacts import ModelFileError
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 #: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
@@ -29,6 +32,8 @@ INPUT_NAMES = ("images", "reference")
 OUTPUT_NAME = "bin_forces_n"
 #: Metadata key of the Fz threshold a graph applies (JSON: a number of newtons, or null for none).
 THRESHOLD_METADATA = "fz_threshold_n"
+#: What a graph is written to first, beside its file (`save_graph`).
+PARTIAL_SUFFIX = ".partial"
 
 
 class _Float16Graph(nn.Module):
@@ -60,13 +65,42 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
     graph = model if precision == "fp32" else _Float16Graph(model)
     c, size = model.n_cameras, model.config.image_size
     example = (torch.zeros(1, c, size, size, dtype=torch.uint8), torch.zeros(c, size, size, dtype=torch.uint8))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     proto = onnx.load_from_string(onnx_bytes(graph, example, OUTPUT_NAME))
     onnx.helper.set_model_props(proto, {THRESHOLD_METADATA: json.dumps(model.fz_threshold_n)})
     onnx.checker.check_model(proto, full_check=True)
-    onnx.save(proto, str(path))
+    return save_graph(proto, Path(path))
+
+
+def save_graph(proto: onnx.ModelProto, path: Path) -> Path:
+    """Write the graph `proto` to `path` whole or not at all: to a file beside it (PARTIAL_SUFFIX), renamed over it
+    once on disk, so that a write that fails (a full disk) or is cut off leaves the previous graph as it was.
+    ModelFileError naming the file if it cannot be written."""
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(partial, "wb") as f:
+            f.write(proto.SerializeToString())
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(partial, path)
+    except OSError as exc:
+        _discard(partial)
+        raise _unwritable(path, exc) from exc
     return path
+
+
+def _discard(path: Path) -> None:
+    """Remove the temporary file `path` if it is there and can be (the error being reported matters more)."""
+    with contextlib.suppress(OSError):
+        path.unlink(missing_ok=True)
+
+
+def _unwritable(path: Path, exc: OSError) -> ModelFileError:
+    """The error of a graph file that cannot be written (a read-only directory, a full disk), naming the file that
+    failed (`path` or one written on the way to it)."""
+    return ModelFileError(f"{exc.filename or path} cannot be written ({exc.strerror or exc}): make room on the disk "
+                          f"or make {path.parent} writable, then export again (tactile-fusion export --model "
+                          f"{path.parent})")
 
 
 def graph_threshold(metadata: dict[str, str]) -> tuple[bool, float | None]:
@@ -111,10 +145,10 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
     from onnxruntime.quantization import QuantType, quant_pre_process, quantize_dynamic
 
     fp32_path, int8_path = Path(fp32_path), Path(int8_path)
-    int8_path.unlink(missing_ok=True)  # a graph of another model must not stay behind if this one fails
     prepared = int8_path.with_name(int8_path.stem + ".prep.onnx")
     quantized = int8_path.with_name(int8_path.stem + ".quantized.onnx")
     try:
+        int8_path.unlink(missing_ok=True)  # a graph of another model must not stay behind if this one fails
         quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
         fusion = fusion_node_names(prepared)
         # Dynamic quantization first rewrites every Gemm as MatMul + Add, the MatMul named "<Gemm name>_MatMul":
@@ -123,9 +157,11 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
                          op_types_to_quantize=["MatMul", "Gemm"],
                          nodes_to_exclude=[*fusion, *(f"{name}_MatMul" for name in fusion)])
         proto = onnx.load(str(quantized))
+    except OSError as exc:  # the intermediate graphs beside it could not be written
+        raise _unwritable(int8_path, exc) from exc
     finally:
-        prepared.unlink(missing_ok=True)
-        quantized.unlink(missing_ok=True)
+        _discard(prepared)
+        _discard(quantized)
     onnx.checker.check_model(proto, full_check=True)
     # Checked on the result, by operator type (not by the names the exclusion relied on).
     head = _after_last_activation(proto.graph.node)
@@ -134,8 +170,7 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
                            "of its nodes change?); it must stay in float")
     metadata = {p.key: p.value for p in onnx.load(str(fp32_path), load_external_data=False).metadata_props}
     onnx.helper.set_model_props(proto, metadata)  # the float graph's, the Fz threshold's included
-    onnx.save(proto, str(int8_path))
-    return int8_path
+    return save_graph(proto, int8_path)
 
 
 #: Operators of a quantized matrix product, and of a float one.

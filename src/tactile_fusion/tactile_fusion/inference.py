@@ -172,13 +172,14 @@ class OnnxRuntimePredictor(ForcePredictor):
 
 
 def _graph_session(path: Path, threads: int | None):
-    """An `onnx_session` of a model directory's graph file; ModelFileError if ONNX Runtime cannot load it (truncated,
-    not a graph, an operator it does not know)."""
+    """An `onnx_session` of a model directory's graph file; ModelFileError if ONNX Runtime cannot load it (empty,
+    truncated, not a graph, an operator it does not know)."""
     from onnxruntime.capi import onnxruntime_pybind11_state as ort_errors
 
     try:
         return onnx_session(path, threads)
-    except (ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.Fail, ort_errors.NotImplemented) as exc:
+    except (ort_errors.InvalidProtobuf, ort_errors.InvalidGraph, ort_errors.InvalidArgument, ort_errors.Fail,
+            ort_errors.NotImplemented) as exc:  # InvalidArgument: an empty file ("No graph was found")
         raise ModelFileError(f"{path} cannot be loaded by ONNX Runtime ({exc}): the graph is damaged or of an "
                              f"incompatible version; re-export it (tactile-fusion export --model {path.parent})"
                              ) from exc

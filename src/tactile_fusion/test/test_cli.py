@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -9,9 +10,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
-from tactile_fusion.artifacts import METRICS_JSON, MODEL_JSON, ONNX_FILES, STATE_DICT, TRAINING_JSON, file_sha256
+from tactile_fusion.artifacts import (
+    METRICS_JSON,
+    MODEL_JSON,
+    ONNX_FILES,
+    STATE_DICT,
+    TRAINING_JSON,
+    default_model_dir,
+    file_sha256,
+)
 from tactile_fusion.bench import benchmark
+from tactile_fusion.export import PARTIAL_SUFFIX
 from tactile_fusion.training import TrainConfig
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
@@ -256,6 +267,7 @@ def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
     result = run("export", "--model", str(out), "--quiet")
     assert (out / ONNX_FILES["fp32"]).stat().st_mtime_ns > before
     assert f"int8: {out / ONNX_FILES['int8']}" in result.stdout
+    assert not list(out.glob(f"*{PARTIAL_SUFFIX}"))  # each graph written beside its file, then renamed over it
     measured = json.loads((out / METRICS_JSON).read_text())["backends"]
     for precision, name in ONNX_FILES.items():
         assert measured[f"onnxruntime_{precision}"]["model_file"] == name
@@ -503,3 +515,73 @@ def test_a_model_that_outputs_inf_is_an_error_line_not_a_traceback(tiny_model, t
     torch.save(weights, broken / STATE_DICT)
     assert "torch fp32: the model produced NaN or Inf from finite inputs" in refusal(
         capsys, "eval", "--model", broken, "--backend", "torch", "--frames", "2", "--quiet")
+
+
+@pytest.fixture
+def shipped_copy(tmp_path) -> Path:
+    """A copy of the shipped model directory, to damage."""
+    return Path(shutil.copytree(default_model_dir(), tmp_path / "model"))
+
+
+def _edited_json(path: Path, change) -> None:
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+
+
+@pytest.mark.parametrize("name, damage, command, message", [
+    (ONNX_FILES["fp32"], lambda p: p.write_bytes(b""), "eval", r"model.onnx cannot be loaded by ONNX Runtime "
+     r"\(.*INVALID_ARGUMENT.*No graph was found.*\): .*re-export it \(tactile-fusion export --model "),
+    (ONNX_FILES["fp32"], lambda p: p.write_bytes(b""), "bench", "model.onnx cannot be loaded by ONNX Runtime"),
+    (STATE_DICT, lambda p: torch.save([1.0, 2.0], p), "eval --backend torch",
+     r"model.pt cannot be read or does not fit model.json \(it holds a list, not a state dict\): .*retrain"),
+    (STATE_DICT, lambda p: (p.unlink(), p.mkdir()), "eval --backend torch",
+     r"model.pt cannot be read or does not fit model.json \(.*Is a directory"),
+    (STATE_DICT, lambda p: torch.save(torch.zeros(3), p), "bench",
+     r"model.pt cannot be read or does not fit model.json \(it holds a Tensor, not a state dict\)"),
+    (MODEL_JSON, lambda p: _edited_json(p, lambda d: d.update(format_version="1")), "eval",
+     "model.json: format_version '1' is not 1; retrain the model"),
+    (METRICS_JSON, lambda p: _edited_json(p, lambda d: d["backends"]["onnxruntime_fp32"].update(
+        rmse_bin_n=[0, 0, None])),
+     "bench --runs 1", r"metrics.json: the figures of onnxruntime_fp32 must be numbers, got \{'rmse_bin_fz_n': None\}; "
+     r"measure the model again \(tactile-fusion export --model"),
+])
+def test_a_damaged_file_of_a_model_directory_is_one_error_line_naming_it(shipped_copy, capsys, name, damage, command,
+                                                                         message):
+    """Refused before anything is evaluated or benchmarked (bench --runs 1 would otherwise run to its end)."""
+    damage(shipped_copy / name)
+    line = refusal(capsys, *command.split(), "--model", shipped_copy, "--quiet")
+    assert re.match(f"tactile-fusion {command.split()[0]}: error: {re.escape(str(shipped_copy))}/{message}", line), line
+
+
+@pytest.mark.parametrize("out", ["file", "file/plots"])
+def test_eval_refuses_an_out_it_cannot_write_before_it_reads_any_data(tmp_path, capsys, out):
+    (tmp_path / "file").write_text("")
+    # Checked before the data set is read: the dataset that is not there is not what it reports.
+    line = refusal(capsys, "eval", "--out", tmp_path / out, "--dataset", tmp_path / "no_data", "--quiet")
+    assert line.startswith(f"tactile-fusion eval: error: --out {tmp_path / out} cannot be written to as a directory ("
+                           f"{'File exists' if out == 'file' else 'Not a directory'}"), line
+    assert line.endswith("give a directory that can be created and written to")
+
+
+def test_an_export_that_cannot_write_a_graph_leaves_the_previous_one_whole(shipped_copy, capsys):
+    graph = shipped_copy / ONNX_FILES["fp32"]
+    before = {f.name: file_sha256(f) for f in shipped_copy.iterdir()}
+    partial = graph.with_name(graph.name + PARTIAL_SUFFIX)
+    partial.symlink_to("/dev/full")  # where the graph is written first, on a full disk
+    assert refusal(capsys, "export", "--model", shipped_copy) == (
+        f"tactile-fusion export: error: {graph} cannot be written (No space left on device): make room on the disk or "
+        f"make {shipped_copy} writable, then export again (tactile-fusion export --model {shipped_copy})")
+    assert not partial.is_symlink()
+    assert {f.name: file_sha256(f) for f in shipped_copy.iterdir()} == before
+
+
+def test_an_export_that_cannot_write_the_int8_graphs_intermediate_file_is_one_error_line(shipped_copy, capsys):
+    int8 = shipped_copy / ONNX_FILES["int8"]
+    prepared = int8.with_name(int8.stem + ".prep.onnx")
+    prepared.symlink_to("/dev/full")
+    assert refusal(capsys, "export", "--model", shipped_copy).startswith(
+        f"tactile-fusion export: error: {int8} cannot be written (No space left on device)")
+    # The int8 graph of the model before is gone (it must not stay beside a new float graph), and no file is half there.
+    assert not prepared.is_symlink() and not int8.exists()
+    assert not list(shipped_copy.glob(f"*{PARTIAL_SUFFIX}"))
