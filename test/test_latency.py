@@ -1,7 +1,10 @@
 """System test of `tactile-latency`: the whole simulated graph as real processes, measured from outside."""
 
 import json
+import os
+import signal
 import subprocess
+import time
 
 import pytest
 
@@ -41,3 +44,24 @@ def test_latency_refuses_a_model_directory_without_a_model(tmp_path):
     run = subprocess.run(["tactile-latency", "--model", str(tmp_path), "--log-dir", str(tmp_path)],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and run.stderr.startswith("tactile-latency: error: no model in"), run.stderr
+
+
+def test_a_node_that_exits_ends_the_measurement_at_once(ros_domain, graph_tools, tmp_path):
+    """Not the 60 s wait for a first estimate, nor the 100 windows asked for: the bundle node's exit ends the run."""
+    process = graph_tools.start(["tactile-latency", "--windows", "100", "--window", "1", "--log-dir", str(tmp_path)])
+
+    def nodes(name: str) -> list[str]:
+        found = subprocess.run(["pgrep", "-s", str(process.pid), "-f", name], capture_output=True, text=True)
+        return found.stdout.split()
+
+    deadline = time.monotonic() + 120.0
+    while not nodes("sim_camera_node"):  # the cameras start last, once the fusion node publishes
+        assert process.poll() is None and time.monotonic() < deadline, "the graph did not start"
+        time.sleep(0.2)
+    (bundle_node,) = nodes("bundle_node")
+    os.kill(int(bundle_node), signal.SIGKILL)
+    killed = time.monotonic()
+    run = graph_tools.finish(process, 50)
+    assert time.monotonic() - killed < 30.0
+    assert run.returncode == 1 and "tactile-latency: node tactile_bundle exited" in run.stderr, run.stderr
+    assert json.loads(run.stdout.strip().splitlines()[-1])["exit_codes"]["tactile_bundle"] == -signal.SIGKILL

@@ -5,8 +5,9 @@ sensor.launch.py` starts where the launch system is installed), listens to `/tac
 simulator's `/tactile/ground_truth/force_distribution`, prints one line per second, stops the graph after
 `--duration` seconds and prints a summary (`--json`: one JSON object) with every node's exit code. Exits 1 when
 the graph produced no estimate or an estimate that breaks the message contract, or a node exited before the end
-or with a non-zero code; 2 when the sensor file cannot be read or a node exits while the graph starts. Ctrl-C and
-SIGTERM end the run early, with the summary.
+or with a non-zero code; 2, before any node starts, when the sensor or scene file is refused or the log directory
+cannot be made, and when a node exits while the graph starts. Ctrl-C and SIGTERM end the run early, with the
+summary.
 """
 
 from __future__ import annotations
@@ -24,15 +25,23 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import sensor_graph
-from tactile_bringup.processes import log_tail, start_tool_graph, stop_nodes
+from tactile_bringup.processes import (
+    LogDirError,
+    check_tool_inputs,
+    first_exited,
+    log_tail,
+    start_tool_graph,
+    stop_nodes,
+)
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.stop_signals import until_stop_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
-from tactile_description import SensorConfigError, default_sensor_path, load_sensor
+from tactile_description import SensorConfigError, default_sensor_path
 from tactile_description.command_line import error_exit, number_argument, stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
+from tactile_sim import SceneError
 
 
 class Monitor(Node):
@@ -121,8 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     sensor_config = args.sensor or str(default_sensor_path())
     log_dir = Path(args.log_dir)
     try:
-        sensor = load_sensor(sensor_config)
-    except SensorConfigError as exc:
+        sensor = check_tool_inputs(sensor_config, args.scene, log_dir)
+    except (SensorConfigError, SceneError, LogDirError) as exc:
         return error_exit("tactile-demo", exc)
     rclpy.init()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
@@ -138,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         with until_stop_signal():  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
             while time.monotonic() - started < args.duration:
                 rclpy.spin_once(monitor, timeout_sec=0.05)
-                died = next((s for s, p in zip(specs, processes, strict=True) if p.poll() is not None), None)
+                died = first_exited(specs, processes)
                 if died:
                     print(f"tactile-demo: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
                           file=sys.stderr)

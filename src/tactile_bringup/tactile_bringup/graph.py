@@ -10,9 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from tactile_description import SensorDescription
+from tactile_description.yaml_fields import load_yaml_file
 
 SOURCES = ("sim", "cameras")
 
@@ -43,7 +42,7 @@ def yaml_scalar(value: str | int | float | bool) -> str:
 
 def camera_sources(path: str | Path, sensor: SensorDescription) -> dict[str, str]:
     """The OpenCV source (device index, device path or video file) of every camera, from a YAML mapping."""
-    sources = yaml.safe_load(Path(path).read_text()) or {}
+    sources = load_yaml_file(path, "camera sources file") or {}
     if not isinstance(sources, dict):
         raise ValueError(f"{path}: expected a mapping camera_id -> source")
     missing = [c for c in sensor.camera_ids if c not in sources]

@@ -6,7 +6,8 @@ arrival in this process minus its capture stamp (the bundle's stamp, the median 
 estimate keeps): for the bundles on /tactile/image_bundle (cameras and synchronisation) and for the estimates on
 /tactile/force_distribution (plus inference and publication). Per window the median and the 90th percentile over
 its messages; reported are their medians over the windows and the range of the window medians. Exits 1 when a
-window got no estimate or a node failed.
+window got no estimate or a node failed (a node that exits ends the wait and the measurement at once); 2, before
+any node starts, when the sensor, scene or model is refused or the log directory cannot be made.
 
 The probe's own subscription to the 64 KB bundles is one more reader for the bundle node; without it, bundles
 would leave that node a little sooner.
@@ -30,11 +31,19 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import spin_until, start_tool_graph, stop_nodes
+from tactile_bringup.processes import (
+    LogDirError,
+    check_tool_inputs,
+    first_exited,
+    log_tail,
+    spin_until,
+    start_tool_graph,
+    stop_nodes,
+)
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.stop_signals import until_stop_signal
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
-from tactile_description import SensorConfigError, default_sensor_path, load_sensor
+from tactile_description import SensorConfigError, default_sensor_path
 from tactile_description.command_line import (
     error_exit,
     number_argument,
@@ -46,6 +55,7 @@ from tactile_fusion.bench import call_times_s, synthetic_frame
 from tactile_fusion.fusion_node import MARKERS_RATE_HZ
 from tactile_fusion.inference import BACKENDS, PRECISIONS, check_backend, load_predictor
 from tactile_msgs.msg import ForceDistribution, ImageBundle
+from tactile_sim import SceneError
 
 #: The fusion node's intra-op threads here, in the graph and in the baseline.
 FUSION_THREADS = 1
@@ -132,10 +142,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
 
     sensor_config = args.sensor or str(default_sensor_path())
+    log_dir = Path(args.log_dir)
     try:
-        sensor = load_sensor(sensor_config)
+        sensor = check_tool_inputs(sensor_config, args.scene, log_dir)  # first: the baseline takes seconds
         baseline_ms = inference_ms(args.model, args.backend, args.precision)
-    except (SensorConfigError, ModelFileError) as exc:
+    except (SensorConfigError, SceneError, LogDirError, ModelFileError) as exc:
         return error_exit("tactile-latency", exc)
     nodes = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
                          precision=args.precision)
@@ -143,20 +154,29 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init()
     probe = LatencyProbe()
     windows = []
-    started = start_tool_graph("tactile-latency", graph, Path(args.log_dir), probe)
+    started = start_tool_graph("tactile-latency", graph, log_dir, probe)
     if isinstance(started, int):
         return started
     specs, processes = started
+
+    def exited() -> bool:  # every wait ends at once when a node exits: no estimate or window could follow
+        return first_exited(specs, processes) is not None
+
     try:
         with until_stop_signal():  # Ctrl-C, or SIGTERM (rclpy shuts the context down): the summary all the same
-            if spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC], FIRST_ESTIMATE_TIMEOUT_S):
-                spin_until(probe, lambda: False, args.settle)
+            if not spin_until(probe, lambda: probe.latencies_s[ESTIMATE_TOPIC] or exited(), FIRST_ESTIMATE_TIMEOUT_S):
+                print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
+                      file=sys.stderr)
+            elif not exited():
+                spin_until(probe, exited, args.settle)
                 probe.take()
                 for _ in range(args.windows):
-                    spin_until(probe, lambda: False, args.window)
+                    if spin_until(probe, exited, args.window):
+                        break
                     windows.append(probe.take())
-            else:
-                print(f"tactile-latency: no estimate within {FIRST_ESTIMATE_TIMEOUT_S:.0f} s of the cameras' start",
+            died = first_exited(specs, processes)
+            if died:
+                print(f"tactile-latency: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
                       file=sys.stderr)
     finally:
         codes = stop_nodes(processes)

@@ -16,12 +16,38 @@ from rclpy.node import Node
 from tactile_bringup.graph import NodeSpec
 from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC
+from tactile_description import SensorDescription, load_sensor
 from tactile_description.command_line import error_exit
+from tactile_sim.scene import load_scene
 
 #: Time a stuck node gets to write its stacks before it is killed.
 STACK_DUMP_S = 1.0
 #: SIGINT is sent again this often while a node has not exited (see `stop_nodes`).
 SIGINT_REPEAT_S = 3.0
+
+
+class LogDirError(ValueError):
+    """A --log-dir that cannot be a directory (an existing file, a path under a file, ...)."""
+
+
+def check_tool_inputs(sensor_config: str, scene: str, log_dir: Path) -> SensorDescription:
+    """What tactile-demo and tactile-latency check before they start any node: the sensor description, the scene
+    against it, as the simulated camera node will load them (a node that refused them would only say so in its log,
+    once the graph had started), and the nodes' log directory, made here. The sensor description; raises
+    SensorConfigError, SceneError or LogDirError, each with a one-line message naming the file."""
+    sensor = load_sensor(sensor_config)
+    load_scene(scene, sensor)
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # FileExistsError for a file, NotADirectoryError for a path under one
+        raise LogDirError(f"--log-dir {log_dir}: cannot make it a directory for the nodes' logs "
+                          f"({exc.strerror or exc}); name a directory or a path to create") from exc
+    return sensor
+
+
+def first_exited(specs: list[NodeSpec], processes: list[subprocess.Popen]) -> NodeSpec | None:
+    """The first node (in start order) whose process has exited, None while all run."""
+    return next((spec for spec, process in zip(specs, processes, strict=True) if process.poll() is not None), None)
 
 
 def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None) -> subprocess.Popen:

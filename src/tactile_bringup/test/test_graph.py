@@ -45,6 +45,15 @@ def test_camera_sources_must_cover_every_camera(sensor, tmp_path):
         camera_sources(partial, sensor)
 
 
+def test_a_camera_sources_file_that_is_not_yaml_text_is_refused_naming_it(sensor, tmp_path):
+    sources = tmp_path / "sources.yaml"
+    sources.write_bytes(b"cam0: \xf0\x28\x8c\x28\n")
+    with pytest.raises(ValueError, match=rf"camera sources file {sources} is not UTF-8 text"):
+        camera_sources(sources, sensor)
+    with pytest.raises(ValueError, match=rf"cannot read camera sources file {tmp_path / 'none.yaml'}"):
+        camera_sources(tmp_path / "none.yaml", sensor)
+
+
 def test_a_camera_source_left_empty_is_refused_not_taken_as_the_text_none(sensor, tmp_path):
     sources = tmp_path / "sources.yaml"
     sources.write_text("cam0: 0\ncam1:\ncam2: ''\ncam3: /dev/video3\n")

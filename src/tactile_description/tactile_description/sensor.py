@@ -13,9 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from tactile_description.yaml_fields import YamlFields
+from tactile_description.yaml_fields import YamlFields, load_yaml_file
 
 MM = 1e-3
 KPA = 1e3
@@ -23,6 +22,11 @@ UM = 1e-6
 
 #: Environment variable that names a sensor description to use instead of the installed default.
 SENSOR_ENV = "TACTILE_SENSOR_CONFIG"
+
+#: Widest or tallest capture image, pixels (a 4K camera's width). The crop lies inside the capture and the output
+#: image is the crop area-downsampled (tactile_description.imaging), so this bounds all three: a larger value is a
+#: typo that would only end in a failed allocation of the simulator's image buffers.
+MAX_IMAGE_SIDE_PX = 4096
 
 
 class SensorConfigError(ValueError):
@@ -201,12 +205,7 @@ def default_sensor_path() -> Path:
 def load_sensor(path: str | os.PathLike | None = None) -> SensorDescription:
     """Read and validate a sensor description; `None` means the default one (see default_sensor_path)."""
     path = Path(path) if path is not None else default_sensor_path()
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise SensorConfigError(f"cannot read sensor description {path}: {exc.strerror}") from exc
-    except yaml.YAMLError as exc:
-        raise SensorConfigError(f"sensor description {path} is not valid YAML: {exc}") from exc
+    raw = load_yaml_file(path, "sensor description", SensorConfigError)
     if not isinstance(raw, dict):
         raise SensorConfigError(f"sensor description {path} must be a mapping at the top level")
     return _parse(raw, str(path))
@@ -250,10 +249,16 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     cams = top.child("cameras")
     capture, c, out, lens_node = cams.child("capture"), cams.child("crop"), cams.child("output"), cams.child("lens")
     capture_size = (capture.count("width"), capture.count("height"))
+    if max(capture_size) > MAX_IMAGE_SIDE_PX:
+        raise SensorConfigError(f"{source}: cameras.capture {capture_size[0]} x {capture_size[1]} px is larger than "
+                                f"{MAX_IMAGE_SIDE_PX} px on a side; give the camera's real image size")
     crop = Crop(c.count("x", low=0), c.count("y", low=0), c.count("width"), c.count("height"))
     if crop.x + crop.width > capture_size[0] or crop.y + crop.height > capture_size[1]:
         raise SensorConfigError(f"{source}: cameras.crop {crop} does not fit in the {capture_size} capture")
     output_size = (out.count("width"), out.count("height"))
+    if output_size[0] > crop.width or output_size[1] > crop.height:  # INTER_AREA would upsample, adding no detail
+        raise SensorConfigError(f"{source}: cameras.output {output_size[0]} x {output_size[1]} px is larger than the "
+                                f"{crop.width} x {crop.height} px crop it is downsampled from; make it at most that")
     lens = FisheyeLens(fx=lens_node.number("fx", positive=True), fy=lens_node.number("fy", positive=True),
                        cx=lens_node.number("cx"), cy=lens_node.number("cy"),
                        distortion=lens_node.numbers("distortion", 4))

@@ -1,14 +1,52 @@
-"""Typed, range-checked reading of YAML mappings, with errors that name the file and the key path.
+"""Reading the stack's YAML files (sensor descriptions, simulator scenes): the file itself, then typed,
+range-checked fields, with errors that name the file and the key path.
 
-Used by every YAML file of the stack (sensor descriptions, simulator scenes), so that a typo or an impossible
-value is reported the same way everywhere: which file, which key, what was expected, what was found.
+Used by every YAML file of the stack, so that an unreadable file, a typo or an impossible value is reported the
+same way everywhere: which file, which key, what was expected, what was found.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import re
+from pathlib import Path
+
+import yaml
 
 from tactile_description.value_checks import is_number, is_whole_number
+
+
+class YamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, which also reads YAML 1.2 floats such as `1e-3`, `5e-1`, `1e3` and `1.5e3` as floats.
+
+    PyYAML follows YAML 1.1, whose float needs a dot and a signed exponent: it reads `1e-3` as the string "1e-3",
+    which every number check then refuses with a confusing message. The added resolver needs a dot or an exponent,
+    so that `10` stays an integer (counts are checked to be whole numbers); YAML 1.1's floats (`.inf`, `.nan`,
+    `1_000.5`) still resolve through PyYAML's own resolver, which this one is added after.
+    """
+
+
+YamlLoader.add_implicit_resolver(  # a classmethod: copies SafeLoader's resolvers first, leaving them as they are
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+)$"),
+    list("-+.0123456789"))
+
+
+def load_yaml_file(path: str | os.PathLike, what: str, error: type[Exception] = ValueError):
+    """The content of the YAML file `path` (read with YamlLoader). A file that cannot be read, is not UTF-8 text or
+    is not YAML raises `error` with a one-sentence message naming `what` ("sensor description") and the path."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")  # YAML files are UTF-8, whatever the locale says
+    except OSError as exc:
+        raise error(f"cannot read {what} {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:  # a ValueError, which the command lines would report without the file's name
+        raise error(f"{what} {path} is not UTF-8 text (bad byte at offset {exc.start}); give a YAML file") from exc
+    try:
+        return yaml.load(text, Loader=YamlLoader)  # a SafeLoader: builds no Python objects
+    except yaml.YAMLError as exc:
+        raise error(f"{what} {path} is not valid YAML: {exc}") from exc
 
 
 class YamlFields:

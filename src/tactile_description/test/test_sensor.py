@@ -6,6 +6,7 @@ import pytest
 import yaml
 
 from tactile_description import SENSOR_ENV, SensorConfigError, default_sensor_path, load_sensor
+from tactile_description.sensor import MAX_IMAGE_SIDE_PX
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 
@@ -87,6 +88,12 @@ def _broken(tmp_path, edit):
     (lambda r: r["cameras"].update(units=[]), "at least one camera"),
     (lambda r: r["gel_layers"][2].update(name="particle_layer"), r"gel_layers\[\*\].name must be unique"),
     (lambda r: r["particles"].update(per_mm3=1e-6), r"particles.per_mm3 = 1e-06 puts no particle in the 7497 mm\^3"),
+    (lambda r: r["cameras"]["output"].update(width=100000, height=100000),
+     r"cameras.output 100000 x 100000 px is larger than the 240 x 240 px crop"),
+    (lambda r: r["cameras"]["output"].update(height=241), r"cameras.output 128 x 241 px is larger than the 240 x 240"),
+    (lambda r: r["cameras"].update(capture={"width": 100000, "height": 100000},
+                                   crop={"x": 0, "y": 0, "width": 100000, "height": 100000}),
+     f"cameras.capture 100000 x 100000 px is larger than {MAX_IMAGE_SIDE_PX} px on a side"),
 ])
 def test_bad_descriptions_name_the_faulty_key(tmp_path, edit, message):
     with pytest.raises(SensorConfigError, match=message):
@@ -100,6 +107,33 @@ def test_missing_and_corrupt_files_get_clear_errors(tmp_path):
     corrupt.write_text("surface: [unclosed")
     with pytest.raises(SensorConfigError, match="not valid YAML"):
         load_sensor(corrupt)
+
+
+def test_a_file_that_is_not_utf8_text_is_refused_naming_it(tmp_path, monkeypatch):
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(128, 256)) + bytes(72))  # 200 bytes, the first not valid UTF-8
+    with pytest.raises(SensorConfigError, match=f"sensor description {binary} is not UTF-8 text"):
+        load_sensor(binary)
+    monkeypatch.setenv(SENSOR_ENV, str(binary))
+    with pytest.raises(SensorConfigError, match="is not UTF-8 text"):
+        load_sensor()
+
+
+def test_the_largest_capture_and_an_output_as_large_as_the_crop_are_accepted(tmp_path):
+    size = {"width": MAX_IMAGE_SIDE_PX, "height": MAX_IMAGE_SIDE_PX}
+    sensor = load_sensor(_broken(tmp_path, lambda r: r["cameras"].update(
+        capture=size, crop={"x": 0, "y": 0, **size}, output=size)))
+    assert sensor.cameras[0].output_size == (MAX_IMAGE_SIDE_PX, MAX_IMAGE_SIDE_PX)
+
+
+def test_exponent_floats_read_as_numbers(tmp_path):
+    """YAML 1.1 (PyYAML) reads 1e-3 or 5e-1 as strings; the stack's files read them as numbers, as YAML 1.2 does."""
+    text = (CONFIG / "sensor.yaml").read_text()
+    text = text.replace("frame_rate_hz: 40.0", "frame_rate_hz: 4e1").replace("per_mm3: 1.0", "per_mm3: 1e0")
+    path = tmp_path / "exponents.yaml"
+    path.write_text(text)
+    sensor = load_sensor(path)
+    assert sensor.frame_rate_hz == 40.0 and sensor.particle_count == 7497
 
 
 def test_the_particle_count_is_the_density_times_the_layer_volume_rounded(reference):

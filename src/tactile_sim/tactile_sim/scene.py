@@ -21,11 +21,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from tactile_description import BinGrid, SensorDescription, default_sensor_path
 from tactile_description.value_checks import is_number, is_whole_number
-from tactile_description.yaml_fields import YamlFields
+from tactile_description.yaml_fields import YamlFields, load_yaml_file
 from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, press_problem
 from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
 from tactile_sim.elastic import compliant_layer
@@ -446,12 +445,7 @@ def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None
             known = sorted(p.stem for p in path.parent.glob("*.yaml"))
             raise SceneError(f"no scene file {path_or_name!r} and no installed scene of that name; installed scenes "
                              f"are {known} (in {path.parent})")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise SceneError(f"cannot read scene file {path}: {exc.strerror}") from exc
-    except yaml.YAMLError as exc:
-        raise SceneError(f"scene file {path} is not valid YAML: {exc}") from exc
+    raw = load_yaml_file(path, "scene file", SceneError)
     scene = parse_scene(raw, str(path))
     if sensor is not None:
         scene.validate(sensor)

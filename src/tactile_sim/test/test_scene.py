@@ -226,3 +226,19 @@ def test_unknown_scene_names_list_the_installed_ones(tmp_path):
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump(_scene()))
     assert len(load_scene(good)) == 2
+
+
+def test_a_scene_file_that_is_not_utf8_text_is_refused_naming_it(tmp_path):
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(128, 256)) + bytes(72))  # 200 bytes, the first not valid UTF-8
+    with pytest.raises(SceneError, match=f"scene file {binary} is not UTF-8 text"):
+        load_scene(binary)
+
+
+def test_exponent_floats_in_a_scene_file_are_numbers(tmp_path, sensor):
+    """YAML 1.1 (PyYAML) reads 5e-1 as a string; a scene file reads it as a number, as YAML 1.2 does."""
+    path = tmp_path / "exponents.yaml"
+    path.write_text("{name: t, seed: 1, timeline: [{press: {x_mm: 2.45e1, y_mm: 25, depths_mm: [5e-1, 1e0]}}]}")
+    frames = _all_contacts(load_scene(path, sensor), sensor)
+    assert [c.depth_m for (c,) in frames] == pytest.approx([0.5e-3, 1e-3])
+    assert frames[0][0].x_m == pytest.approx(24.5e-3)

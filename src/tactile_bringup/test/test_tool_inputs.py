@@ -1,0 +1,50 @@
+"""tactile-demo and tactile-latency refuse a bad scene, sensor file or log directory before any node starts: one
+line on stderr and exit status 2 (no graph starts, so these run in a second)."""
+
+import pytest
+
+from tactile_bringup import demo, latency
+
+TOOLS = {"tactile-demo": demo.main, "tactile-latency": latency.main}
+
+
+def refused(capsys, program: str, args: list[str]) -> str:
+    """Run the tool's main in this process; it must end with status 2 and one line on stderr, which is returned."""
+    assert TOOLS[program](args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"{program}: error: "), err
+    return err
+
+
+@pytest.mark.parametrize("program", sorted(TOOLS))
+def test_an_unknown_scene_is_refused_before_the_log_directory_is_made(program, capsys, tmp_path):
+    logs = tmp_path / "logs"
+    err = refused(capsys, program, ["--scene", "nonexistent_scene", "--log-dir", str(logs)])
+    assert "no scene file 'nonexistent_scene'" in err and "installed scenes are" in err
+    assert not logs.exists()
+
+
+@pytest.mark.parametrize("program", sorted(TOOLS))
+def test_a_scene_the_sensor_cannot_play_is_refused(program, capsys, tmp_path):
+    scene = tmp_path / "deep.yaml"
+    scene.write_text("{name: deep, seed: 1, timeline: [{press: {x_mm: 24, y_mm: 25, depths_mm: [5]}}]}")
+    err = refused(capsys, program, ["--scene", str(scene), "--log-dir", str(tmp_path / "logs")])
+    assert f"{scene}.timeline[0].press: a press 5 mm deep is deeper than" in err
+
+
+@pytest.mark.parametrize("program", sorted(TOOLS))
+def test_a_sensor_file_that_is_not_text_is_refused_naming_it(program, capsys, tmp_path):
+    sensor = tmp_path / "binary.yaml"
+    sensor.write_bytes(bytes(range(128, 256)) + bytes(72))
+    err = refused(capsys, program, ["--sensor", str(sensor), "--log-dir", str(tmp_path / "logs")])
+    assert f"sensor description {sensor} is not UTF-8 text" in err
+
+
+@pytest.mark.parametrize("program", sorted(TOOLS))
+def test_a_log_directory_that_cannot_be_made_is_refused(program, capsys, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for log_dir, why in ((afile, "File exists"), (afile / "x", "Not a directory")):
+        err = refused(capsys, program, ["--duration" if program == "tactile-demo" else "--window", "1",
+                                        "--log-dir", str(log_dir)])
+        assert f"--log-dir {log_dir}: cannot make it a directory for the nodes' logs ({why})" in err

@@ -1,0 +1,55 @@
+"""The one YAML file loader of the stack (sensor descriptions and scenes): YAML 1.2 floats, clear file errors."""
+
+import math
+
+import pytest
+import yaml
+
+from tactile_description.yaml_fields import YamlLoader, load_yaml_file
+
+
+@pytest.mark.parametrize("text, value", [
+    ("5e-1", 0.5), ("1e3", 1000.0), ("1e-3", 0.001), ("1E+3", 1000.0), ("-2e2", -200.0), ("1e308", 1e308),
+    ("1.5e3", 1500.0), (".5e1", 5.0), ("1.5", 1.5), ("5.", 5.0), (".inf", math.inf), ("-.inf", -math.inf),
+    ("1_000.5", 1000.5),
+])
+def test_yaml_12_floats_are_floats(tmp_path, text, value):
+    path = tmp_path / "f.yaml"
+    path.write_text(f"v: {text}\n")
+    loaded = load_yaml_file(path, "test file")["v"]
+    assert type(loaded) is float and loaded == value
+
+
+def test_nan_stays_a_float():
+    assert math.isnan(yaml.load("v: .nan", Loader=YamlLoader)["v"])
+
+
+@pytest.mark.parametrize("text, value", [
+    ("10", 10), ("-3", -3), ("0", 0), ("0x10", 16), ("abc", "abc"), ("1e", "1e"), ("e3", "e3"), ("1e3x", "1e3x"),
+    ("'1e3'", "1e3"), ("true", True), ("1.2.3", "1.2.3"),
+])
+def test_integers_stay_integers_and_strings_stay_strings(text, value):
+    loaded = yaml.load(f"v: {text}", Loader=YamlLoader)["v"]
+    assert type(loaded) is type(value) and loaded == value
+
+
+def test_pyyaml_safe_load_itself_is_left_as_it_is():
+    assert yaml.safe_load("v: 1e-3")["v"] == "1e-3"
+
+
+def test_unreadable_non_utf8_and_non_yaml_files_raise_the_given_error_naming_the_file(tmp_path):
+    class Refused(ValueError):
+        pass
+
+    with pytest.raises(Refused, match=f"cannot read thing file {tmp_path / 'absent.yaml'}: No such file"):
+        load_yaml_file(tmp_path / "absent.yaml", "thing file", Refused)
+    with pytest.raises(Refused, match=f"cannot read thing file {tmp_path}: Is a directory"):
+        load_yaml_file(tmp_path, "thing file", Refused)
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"ok: 1\n" + bytes(range(128, 256)) + bytes(66))  # 200 bytes, not valid UTF-8 at offset 6
+    with pytest.raises(Refused, match=f"thing file {binary} is not UTF-8 text \\(bad byte at offset 6\\)"):
+        load_yaml_file(binary, "thing file", Refused)
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("a: [unclosed")
+    with pytest.raises(Refused, match=f"thing file {broken} is not valid YAML"):
+        load_yaml_file(broken, "thing file", Refused)
