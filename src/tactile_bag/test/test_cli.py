@@ -113,26 +113,32 @@ def test_play_stops_on_sigterm_during_a_long_gap(tmp_path):
         for time_ns in (1_700_000_000 * 10**9, 1_710_000_000 * 10**9):
             bag.write("/tactile/cam0/image", IMAGE_TYPE, time_ns, image)
     args = ["tactile-bag", "play", str(tmp_path / "bag"), "--rate", "0.001", "--wait-subscribers", "0"]
+    returncode, out, err, stopped_s = play_until_signal(args, signal.SIGTERM)
+    assert returncode == 0 and "Traceback" not in err, err
+    assert out.startswith("played 1 messages ") and stopped_s < 5.0, (out, stopped_s)
+
+
+def play_until_signal(args: list[str], stop: int) -> tuple[int, str, str, float]:
+    """Run `tactile-bag play` (args), send it `stop` once its publishers are on the graph (seen by a probe node):
+    (exit status, stdout, stderr, seconds from the signal to its exit)."""
     rclpy.init()
-    probe = Node("play_gap_probe")
+    probe = Node("play_signal_probe")
     player = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 30.0
         while not probe.count_publishers("/tactile/cam0/image") and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.5)
-        player.send_signal(signal.SIGTERM)
+        player.send_signal(stop)
         stopped_at = time.monotonic()
         out, err = player.communicate(timeout=30)
-        stopped_s = time.monotonic() - stopped_at
+        return player.returncode, out, err, time.monotonic() - stopped_at
     finally:
         if player.poll() is None:
             player.kill()
             player.communicate()
         probe.destroy_node()
         rclpy.try_shutdown()
-    assert player.returncode == 0 and "Traceback" not in err, err
-    assert out.startswith("played 1 messages ") and stopped_s < 5.0, (out, stopped_s)
 
 
 @pytest.mark.parametrize("duration_s, wait_s", [(math.nan, 1.0), (1.0, math.inf), (0.0, 1.0)])
@@ -159,22 +165,7 @@ def test_play_stopped_by_a_signal_says_what_it_played(sim_bag, stop, loop):
     graph, seen by a probe node."""
     args = ["tactile-bag", "play", str(sim_bag)] + (["--loop", "--wait-subscribers", "0"] if loop else
                                                      ["--wait-subscribers", "60"])
-    rclpy.init()
-    probe = Node("play_signal_probe")
-    player = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 30.0
-        while not probe.count_publishers("/tactile/cam0/image") and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.5)
-        player.send_signal(stop)
-        out, err = player.communicate(timeout=30)
-    finally:
-        if player.poll() is None:
-            player.kill()
-            player.communicate()
-        probe.destroy_node()
-        rclpy.try_shutdown()
-    assert player.returncode == 0 and "Traceback" not in err, err
+    returncode, out, err, _ = play_until_signal(args, stop)
+    assert returncode == 0 and "Traceback" not in err, err
     played = int(out.split("played ")[1].split()[0])
     assert played > 0 if loop else played == 0, out

@@ -6,7 +6,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import rclpy
@@ -14,6 +13,7 @@ from ament_index_python.packages import get_package_prefix
 from rclpy.node import Node
 
 from tactile_bringup.graph import NodeSpec
+from tactile_conversions.spinning import spin_until
 from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC
 from tactile_description import SensorDescription, load_sensor
@@ -57,16 +57,6 @@ def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None)
     with open(log_dir / f"{spec.name}.log", "w") as log:  # the child keeps its own copy of the descriptor
         return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT,
                                 env=env)
-
-
-def spin_until(node: Node, condition: Callable[[], object], timeout_s: float) -> bool:
-    """Spin `node` until `condition()` is true (then True) or for `timeout_s` (then False)."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() >= deadline:
-            return False
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return True
 
 
 class GraphStartError(RuntimeError):

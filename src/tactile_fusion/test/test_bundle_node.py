@@ -11,6 +11,7 @@ from builtin_interfaces.msg import Time
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
+from tactile_conversions.spinning import spin_until
 from tactile_conversions.topics import BUNDLE_TOPIC
 from tactile_fusion.bundle_node import BundleNode
 from tactile_msgs.msg import ImageBundle
@@ -31,20 +32,13 @@ def bundler(monkeypatch):
         nodes.append(BundleNode())
         bundles: list[ImageBundle] = []
         nodes[-1].create_subscription(ImageBundle, BUNDLE_TOPIC, bundles.append, 100)
-        assert spin_until(nodes[-1], lambda: nodes[-1].publisher.get_subscription_count() > 0)
+        assert spin_until(nodes[-1], lambda: nodes[-1].publisher.get_subscription_count() > 0, 10.0)
         return nodes[-1], bundles
 
     yield make
     for node in nodes:
         node.destroy_node()
     rclpy.try_shutdown()
-
-
-def spin_until(node, condition, timeout_s: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return bool(condition())
 
 
 def send(node, stamps, cameras=CAMERAS) -> None:
@@ -71,7 +65,7 @@ def test_an_image_whose_stamp_no_bundle_can_carry_is_dropped_counted_and_logged_
                      "lie in [0, 2**31) s; 1 such image(s) since start") == 1
     assert err.count("such image(s) since start") == 1  # throttled like the other drop logs
     send(node, [100.0 + k * PERIOD_S for k in range(10)])
-    assert spin_until(node, lambda: len(bundles) >= 8)
+    assert spin_until(node, lambda: len(bundles) >= 8, 10.0)
     assert [b.sequence for b in bundles] == list(range(len(bundles)))
     assert all(100.0 <= time_to_seconds(b.header.stamp) < 100.3 for b in bundles)
     node.report_drops()
@@ -90,7 +84,7 @@ def test_a_camera_that_sends_only_stamps_no_bundle_can_carry_is_left_out_like_a_
     assert node.live_cameras == CAMERAS[:3]
     assert "no images from ['cam3'] for 0.50 s" in capfd.readouterr().err
     send(node, [101.0 + k * PERIOD_S for k in range(4)], CAMERAS[:3])
-    assert spin_until(node, lambda: len(bundles) >= 3)
+    assert spin_until(node, lambda: len(bundles) >= 3, 10.0)
     assert all(list(b.camera_ids) == list(CAMERAS[:3]) for b in bundles)
 
 

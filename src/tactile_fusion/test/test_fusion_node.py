@@ -2,7 +2,6 @@
 estimates come back through a subscription, its log through stderr."""
 
 import os
-import time
 
 import numpy as np
 import pytest
@@ -11,6 +10,7 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.spinning import spin_until
 from tactile_conversions.topics import ESTIMATE_TOPIC
 from tactile_description import load_sensor
 from tactile_fusion.fusion_node import FusionNode
@@ -39,18 +39,11 @@ def fusion(monkeypatch):
     estimates: list[ForceDistribution] = []
     node.create_subscription(ForceDistribution, ESTIMATE_TOPIC, estimates.append, 10)
     try:
-        assert spin_until(node, lambda: node.forces_pub.get_subscription_count() > 0)
+        assert spin_until(node, lambda: node.forces_pub.get_subscription_count() > 0, 10.0)
         yield node, estimates
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-
-
-def spin_until(node, condition, timeout_s: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition() and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return bool(condition())
 
 
 def bundle(frame, sequence: int, cameras=("cam0", "cam1", "cam2", "cam3")) -> ImageBundle:
@@ -70,7 +63,7 @@ def test_a_camera_dead_at_start_up_is_named_then_left_out_of_the_reference(fusio
         node.on_bundle(bundle(press_frames[sequence % 2], sequence, without_cam1))
     node.on_bundle(bundle(press_frames[2], REFERENCE_PATIENCE_BUNDLES, without_cam1))
     node.on_bundle(bundle(press_frames[2], REFERENCE_PATIENCE_BUNDLES + 1))  # cam1 is back
-    assert spin_until(node, lambda: len(estimates) == 2)
+    assert spin_until(node, lambda: len(estimates) == 2, 10.0)
     log = capfd.readouterr().err
     assert "capturing the reference: no usable image of cam1 (0 of 2 complete bundles so far); after 80 bundles" in log
     assert f"reference frames captured without cam1 ({REFERENCE_PATIENCE_BUNDLES} bundles brought fewer than 2 " \
@@ -88,7 +81,7 @@ def test_every_broken_camera_of_a_bundle_is_named_in_one_line(fusion, press_fram
     broken.images[1].data = bytes(10)  # cam1: too few bytes
     broken.images[3] = Image(height=4, width=4, encoding="mono8", step=4, data=bytes(16))  # cam3: too small
     node.on_bundle(broken)
-    assert spin_until(node, lambda: len(estimates) == 1)
+    assert spin_until(node, lambda: len(estimates) == 1, 10.0)
     lines = [line for line in capfd.readouterr().err.splitlines() if "bundle 2:" in line]
     assert len(lines) == 1 and "unreadable image of cam1" in lines[0] and "cam3 image of 4 x 4 pixels" in lines[0]
     assert "(1 bundle(s) with unusable images since start)" in lines[0]
@@ -103,8 +96,8 @@ def test_a_malformed_bundle_is_skipped_and_the_node_goes_on(fusion, press_frames
     malformed.images = malformed.images[:3]  # four camera ids, three images
     node.on_bundle(malformed)
     node.on_bundle(bundle(press_frames[2], 3))
-    assert spin_until(node, lambda: len(estimates) == 1)
-    assert not spin_until(node, lambda: len(estimates) > 1, timeout_s=0.3)  # nothing from the malformed bundle
+    assert spin_until(node, lambda: len(estimates) == 1, 10.0)
+    assert not spin_until(node, lambda: len(estimates) > 1, 0.3)  # nothing from the malformed bundle
     assert "bundle 2: malformed bundle (4 camera ids ['cam0', 'cam1', 'cam2', 'cam3'] for 3 image(s); the bundle is " \
         "skipped)" in capfd.readouterr().err
     assert list(estimates[0].missing_camera_ids) == []
@@ -120,7 +113,7 @@ def test_a_malformed_bundle_does_not_count_towards_the_reference(fusion, press_f
     node.on_bundle(bundle(press_frames[1], 2))
     node.on_bundle(bundle(press_frames[2], 3))
     assert node.live.reference.images is not None
-    assert spin_until(node, lambda: len(estimates) == 1)
+    assert spin_until(node, lambda: len(estimates) == 1, 10.0)
 
 
 @pytest.mark.parametrize(("value", "accepted"), [("5", 5.0), ("2.5", 2.5), ("inf", None), ("0", None),
