@@ -94,13 +94,19 @@ def test_a_number_argument_refuses_what_float_takes_but_no_wait_can_use():
 
 
 def test_a_ctrl_c_while_stop_signals_are_ignored_neither_cuts_the_block_short_nor_leaves_it():
-    finished = []
-    with stop_signals_ignored():
-        os.kill(os.getpid(), signal.SIGINT)
-        time.sleep(0.1)  # a KeyboardInterrupt would be raised here, were the signal not ignored
-        finished.append(True)
-    assert finished == [True]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    with pytest.raises(KeyboardInterrupt):  # and Ctrl-C works again after the block
-        os.kill(os.getpid(), signal.SIGINT)
-        time.sleep(1.0)
+    # Python's own Ctrl-C handler, whatever this process inherited (a shell's background job starts with SIGINT
+    # ignored), and the inherited one back afterwards.
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        finished = []
+        with stop_signals_ignored():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)  # a KeyboardInterrupt would be raised here, were the signal not ignored
+            finished.append(True)
+        assert finished == [True]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with pytest.raises(KeyboardInterrupt):  # and Ctrl-C works again after the block
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
