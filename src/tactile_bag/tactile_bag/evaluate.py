@@ -34,7 +34,7 @@ from sensor_msgs.msg import Image
 from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
-from tactile_conversions.ros_time import time_to_seconds
+from tactile_conversions.ros_time import is_ros_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
@@ -178,13 +178,18 @@ class FrameReader:
 
 
 def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader) -> Iterator[BundleFrame]:
-    """The camera images bundled as bundle_node bundles them (same synchroniser, same default settings)."""
+    """The camera images bundled as bundle_node bundles them (same synchroniser, same default settings, images whose
+    stamp no bundle can carry dropped)."""
     sync: ApproximateTimeSync[Image] = ApproximateTimeSync(sensor.camera_ids,
                                                            **camera_sync_settings(sensor.frame_rate_hz))
     cameras = {camera_topic(c): c for c in sensor.camera_ids}
     for topic, _, time_ns, raw in bag.messages(list(cameras)):
         msg = deserialize(raw, Image, topic, time_ns)
-        for bundle in sync.add(cameras[topic], time_to_seconds(msg.header.stamp), msg):
+        stamp_s = time_to_seconds(msg.header.stamp)
+        if not is_ros_time(stamp_s):
+            sync.dropped.drop_bad_stamp(cameras[topic])
+            continue
+        for bundle in sync.add(cameras[topic], stamp_s, msg):
             yield reader.frame(statistics.median(bundle.stamps), bundle.stream_ids, list(bundle.items))
     for reason, count in sync.dropped.by_reason().items():
         if count:

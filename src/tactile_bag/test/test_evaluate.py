@@ -7,16 +7,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ament_index_python.packages import get_package_share_directory
+from builtin_interfaces.msg import Time
 from hypothesis import given
 from hypothesis import strategies as st
+from rclpy.serialization import serialize_message
 
 from tactile_bag import evaluate
-from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
+from tactile_bag.bagfile import BagError, BagReader, BagWriter, DefinitionMismatchError
 from tactile_bag.cli import main
 from tactile_bag.evaluate import FrameReader, evaluate_bag, image_bundles, match_stamps
+from tactile_bag.topics import IMAGE_TYPE
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
-from tactile_conversions.topics import GROUND_TRUTH_TOPIC
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import default_sensor_path
 from tactile_fusion.inference import load_predictor
 from tactile_fusion.live_estimation import REFERENCE_PATIENCE_BUNDLES
@@ -43,6 +46,28 @@ def test_images_are_bundled_frame_by_frame(tmp_path, write_bag, sensor, sim_fram
         np.testing.assert_array_equal(bundle.images, frame.images)
         assert capture_s <= bundle.stamp_s <= capture_s + write_bag.jitter_s
     assert not reader.skipped
+
+
+def test_images_stamped_before_1970_are_dropped_and_counted_as_bundle_node_drops_them(tmp_path, write_bag, sensor,
+                                                                                      sim_frames):
+    """A negative stamp is a legal message that no bundle can carry: bundle_node drops such an image before its
+    synchroniser, and so does the offline bundling (before: the synchroniser took it as the camera's stamps jumping
+    back and started over, dropping what it held)."""
+    write_bag(tmp_path / "clean", sensor, sim_frames)
+    stray = serialize_message(mono8_to_msg(sim_frames[0].images[1], Time(sec=-5), "cam1_optical"))
+    with BagReader(tmp_path / "clean") as clean, BagWriter(tmp_path / "bag") as bag:
+        for n, (topic, _, time_ns, raw) in enumerate(clean.messages(list(clean.topics))):
+            bag.write(topic, clean.topics[topic], time_ns, raw)
+            if n in (40, 80):
+                bag.write(camera_topic("cam1"), IMAGE_TYPE, time_ns + 1, stray)
+    bundled = {}
+    for name in ("clean", "bag"):
+        reader = FrameReader(sensor, 128)
+        with BagReader(tmp_path / name) as bag:
+            bundled[name] = (list(image_bundles(bag, sensor, reader)), reader.skipped)
+    (clean_bundles, _), (bundles, skipped) = bundled["clean"], bundled["bag"]
+    assert skipped == {"images dropped by the synchroniser (bad_stamp)": 2}
+    assert [b.stamp_s for b in bundles] == [b.stamp_s for b in clean_bundles]
 
 
 def test_estimates_are_the_predictors_against_the_mean_of_the_first_bundles(sim_bag, sensor, sim_frames, predictor):

@@ -67,8 +67,9 @@ class SyncCounters:
     - too_wide: the oldest head, when the tightest bundle holding the pivot was wider than `max_spread_s`;
     - superseded: older than a stream's message in the bundle emitted, so it cannot be in a later bundle;
     - reset: still queued when the synchroniser reset (a stream's stamps jumped back, or the caller called reset);
-    - bad_stamp: never given to the synchroniser, stamped with a time the caller's output cannot carry (bundle_node
-      counts these here, a negative ROS time for one, so that one report holds every image it dropped).
+    - bad_stamp: never given to the synchroniser, stamped with a time no bundle can carry (`drop_bad_stamp`: a
+      negative ROS time for one; counted here by its callers, bundle_node and tactile-bag eval, so that one report
+      holds every image dropped).
     """
 
     out_of_order: int = 0
@@ -78,6 +79,11 @@ class SyncCounters:
     reset: int = 0
     bad_stamp: int = 0
     per_stream: dict[str, int] = field(default_factory=dict)
+
+    def drop_bad_stamp(self, stream_id: str) -> None:
+        """Count an image of `stream_id` dropped for its stamp (bad_stamp)."""
+        self.bad_stamp += 1
+        self.per_stream[stream_id] = self.per_stream.get(stream_id, 0) + 1
 
     def by_reason(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "per_stream"}

@@ -97,8 +97,7 @@ class BundleNode(Node):
     def drop_bad_stamp(self, camera_id: str, msg: Image) -> None:
         """Count and log an image whose stamp no bundle could carry: the bundle's stamp (their median) is written
         back into a Time, which would fail (negative) or wrap round to a negative `sec` (2**31 s or later)."""
-        self.dropped.bad_stamp += 1
-        self.dropped.per_stream[camera_id] = self.dropped.per_stream.get(camera_id, 0) + 1
+        self.dropped.drop_bad_stamp(camera_id)
         stamp = msg.header.stamp
         self.get_logger().warning(
             f"{camera_id}: dropped an image stamped sec={stamp.sec} nanosec={stamp.nanosec}: a bundle's stamp must "
