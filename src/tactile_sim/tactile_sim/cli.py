@@ -25,6 +25,10 @@ from tactile_sim.scene import MAX_FRAMES, load_scene
 MODELS = ("analytic", "numerical")
 
 
+#: Exit status after a Ctrl-C: 128 + SIGINT, as a shell reports a command that SIGINT ended.
+STOPPED_BY_CTRL_C = 130
+
+
 def build_parser() -> argparse.ArgumentParser:
     # Counts on the command line: 1 to MAX_FRAMES.
     frames, previews, runs = (whole_number_argument(1, unit, maximum=MAX_FRAMES) for unit in ("frames", "previews",
@@ -127,6 +131,10 @@ def main(argv: list[str] | None = None) -> int:
         return error_exit(f"tactile-sim {args.command}", exc)
     except BrokenPipeError:
         raise  # the reader went away: stops_quietly_on_closed_pipe ends the command as a shell tool does
+    except KeyboardInterrupt:  # Ctrl-C: one line and the shell's status for it, not a traceback
+        stopped = "; the data set is left marked incomplete" if args.command == "generate" else ""
+        print(f"tactile-sim {args.command}: stopped by Ctrl-C{stopped}", file=sys.stderr)
+        return STOPPED_BY_CTRL_C
     except OSError as exc:  # a file or directory that cannot be read or written (--out /dev/null/x, a full disk)
         problem = f"{exc.strerror or exc}: {exc.filename}" if exc.filename else exc
         return error_exit(f"tactile-sim {args.command}", problem)

@@ -2,13 +2,16 @@
 
 import json
 import math
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
 from tactile_sim import open_dataset
+from tactile_sim.dataset import DatasetError
 
 
 def _run(*args, check=True):
@@ -33,6 +36,25 @@ def test_generate_writes_a_readable_data_set(tmp_path):
     assert "frame" in result.stderr  # the tqdm progress bar
     ds = open_dataset(out)
     assert ds.images.shape == (6, 4, 128, 128) and ds.forces[..., 2].sum() > 1.0
+
+
+def test_ctrl_c_stops_generate_in_one_line_with_the_data_set_left_incomplete(tmp_path):
+    """Before: Python's KeyboardInterrupt traceback. The child gets the default SIGINT disposition, so that Python
+    installs its Ctrl-C handler even where this test runs as a background job, which starts with SIGINT ignored."""
+    out = tmp_path / "ds"
+    process = subprocess.Popen([sys.executable, "-m", "tactile_sim.cli", "generate", "--scene", "paper_grid", "--out",
+                                str(out), "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while not (out / "meta.json").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == "tactile-sim generate: stopped by Ctrl-C; the data set is left marked " \
+                                               "incomplete" and "Traceback" not in stderr, stderr
+    with pytest.raises(DatasetError, match="is incomplete"):
+        open_dataset(out)
 
 
 def test_render_writes_previews(tmp_path):
