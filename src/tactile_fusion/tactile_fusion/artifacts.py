@@ -12,8 +12,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 import pickle
 from collections.abc import Mapping
 from pathlib import Path
@@ -199,4 +201,38 @@ def check_model_fits(model, sensor: SensorDescription) -> None:
 
 
 def write_json(path: str | Path, data: dict) -> None:
-    Path(path).write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
+    """`data` as indented JSON in `path`, whole or not at all (replace_file); ModelFileError naming the file if it
+    cannot be written."""
+    path = Path(path)
+    try:
+        replace_file(path, (json.dumps(data, indent=2, sort_keys=False) + "\n").encode())
+    except OSError as exc:
+        raise ModelFileError(f"{exc.filename or path} cannot be written ({exc.strerror or exc}): make room on the "
+                             f"disk or make {path.parent} writable, then run the command again") from exc
+
+
+#: What a file is written to first, beside itself (`replace_file`).
+PARTIAL_SUFFIX = ".partial"
+
+
+def replace_file(path: Path, data: bytes) -> None:
+    """Write `data` to `path` whole or not at all: to a file beside it (PARTIAL_SUFFIX), synced to disk and renamed over
+    it, so that a write that fails (a full disk) or is cut off leaves the file before as it was. An OSError passes
+    (the partial file removed where it can be)."""
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(partial, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(partial, path)
+    except OSError:
+        discard(partial)
+        raise
+
+
+def discard(path: Path) -> None:
+    """Remove the temporary file `path` if it is there and can be (the error being reported matters more)."""
+    with contextlib.suppress(OSError):
+        path.unlink(missing_ok=True)

@@ -11,11 +11,9 @@ of uint8 differences wrong. Each graph also names, in its metadata, the Fz thres
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import io
 import json
-import os
 import warnings
 from pathlib import Path
 
@@ -23,7 +21,7 @@ import onnx
 import torch
 from torch import nn
 
-from tactile_fusion.artifacts import ModelFileError
+from tactile_fusion.artifacts import ModelFileError, discard, replace_file
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 #: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
@@ -32,8 +30,6 @@ INPUT_NAMES = ("images", "reference")
 OUTPUT_NAME = "bin_forces_n"
 #: Metadata key of the Fz threshold a graph applies (JSON: a number of newtons, or null for none).
 THRESHOLD_METADATA = "fz_threshold_n"
-#: What a graph is written to first, beside its file (`save_graph`).
-PARTIAL_SUFFIX = ".partial"
 
 
 class _Float16Graph(nn.Module):
@@ -72,27 +68,13 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
 
 
 def save_graph(proto: onnx.ModelProto, path: Path) -> Path:
-    """Write the graph `proto` to `path` whole or not at all: to a file beside it (PARTIAL_SUFFIX), renamed over it
-    once on disk, so that a write that fails (a full disk) or is cut off leaves the previous graph as it was.
-    ModelFileError naming the file if it cannot be written."""
-    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    """Write the graph `proto` to `path` whole or not at all (artifacts.replace_file), so that a write that fails (a
+    full disk) leaves the previous graph as it was; ModelFileError naming the file if it cannot be written."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(partial, "wb") as f:
-            f.write(proto.SerializeToString())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(partial, path)
+        replace_file(path, proto.SerializeToString())
     except OSError as exc:
-        _discard(partial)
         raise _unwritable(path, exc) from exc
     return path
-
-
-def _discard(path: Path) -> None:
-    """Remove the temporary file `path` if it is there and can be (the error being reported matters more)."""
-    with contextlib.suppress(OSError):
-        path.unlink(missing_ok=True)
 
 
 def _unwritable(path: Path, exc: OSError) -> ModelFileError:
@@ -160,8 +142,8 @@ def quantize_int8(fp32_path: str | Path, int8_path: str | Path) -> Path:
     except OSError as exc:  # the intermediate graphs beside it could not be written
         raise _unwritable(int8_path, exc) from exc
     finally:
-        _discard(prepared)
-        _discard(quantized)
+        discard(prepared)
+        discard(quantized)
     onnx.checker.check_model(proto, full_check=True)
     # Checked on the result, by operator type (not by the names the exclusion relied on).
     head = _after_last_activation(proto.graph.node)

@@ -16,13 +16,13 @@ from tactile_fusion.artifacts import (
     METRICS_JSON,
     MODEL_JSON,
     ONNX_FILES,
+    PARTIAL_SUFFIX,
     STATE_DICT,
     TRAINING_JSON,
     default_model_dir,
     file_sha256,
 )
 from tactile_fusion.bench import benchmark
-from tactile_fusion.export import PARTIAL_SUFFIX
 from tactile_fusion.training import TrainConfig
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"

@@ -12,11 +12,13 @@ from tactile_description import load_sensor
 from tactile_fusion.artifacts import (
     MODEL_JSON,
     ONNX_FILES,
+    PARTIAL_SUFFIX,
     STATE_DICT,
     ModelFileError,
     check_model_fits,
     load_model,
     save_model,
+    write_json,
 )
 from tactile_fusion.camera_out import rest_view, with_cameras_at_rest
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
@@ -366,3 +368,18 @@ def test_a_model_must_fit_the_sensor_in_cameras_bins_and_image_size():
                            (net(sensor.camera_ids, size=64), "64 x 64 images")):
         with pytest.raises(ModelFileError, match=message):
             check_model_fits(TorchPredictor(wrong), sensor)
+
+
+def test_a_json_file_that_cannot_be_written_is_one_error_and_leaves_the_file_before_whole(tmp_path):
+    """model.json, training.json and metrics.json are written beside themselves and renamed into place: a full disk
+    (the partial file a link to /dev/full) leaves the file before as it was, and says which file and what to do."""
+    path = tmp_path / "metrics.json"
+    write_json(path, {"rmse_bin_n": [0.0, 0.0, 0.002]})
+    before = path.read_bytes()
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    partial.symlink_to("/dev/full")
+    with pytest.raises(ModelFileError, match=rf"{path}.* cannot be written \(No space left on device\): make room"):
+        write_json(path, {"rmse_bin_n": [0.0, 0.0, 0.001]})
+    assert path.read_bytes() == before and not partial.is_symlink()
+    write_json(path, {"rmse_bin_n": [0.0, 0.0, 0.001]})
+    assert json.loads(path.read_text()) == {"rmse_bin_n": [0.0, 0.0, 0.001]} and not partial.exists()
