@@ -29,7 +29,7 @@ from tactile_bringup.processes import (
     LogDirError,
     check_tool_inputs,
     first_exited,
-    log_tail,
+    report_exited,
     start_tool_graph,
     stop_nodes,
 )
@@ -149,8 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                 rclpy.spin_once(monitor, timeout_sec=0.05)
                 died = first_exited(specs, processes)
                 if died:
-                    print(f"tactile-demo: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
-                          file=sys.stderr)
+                    report_exited("tactile-demo", died, log_dir)
                     break
                 if time.monotonic() >= next_report and not args.json:
                     next_report += 1.0

@@ -35,7 +35,7 @@ from tactile_bringup.processes import (
     LogDirError,
     check_tool_inputs,
     first_exited,
-    log_tail,
+    report_exited,
     spin_until,
     start_tool_graph,
     stop_nodes,
@@ -176,8 +176,7 @@ def main(argv: list[str] | None = None) -> int:
                     windows.append(probe.take())
             died = first_exited(specs, processes)
             if died:
-                print(f"tactile-latency: node {died.name} exited: {log_tail(log_dir, died)}; see {log_dir}/",
-                      file=sys.stderr)
+                report_exited("tactile-latency", died, log_dir)
     finally:
         codes = stop_nodes(processes)
         probe.destroy_node()

@@ -50,6 +50,11 @@ def first_exited(specs: list[NodeSpec], processes: list[subprocess.Popen]) -> No
     return next((spec for spec, process in zip(specs, processes, strict=True) if process.poll() is not None), None)
 
 
+def report_exited(program: str, spec: NodeSpec, log_dir: Path) -> None:
+    """Say on stderr that node `spec` exited while the tool ran, with the last line of its log."""
+    print(f"{program}: node {spec.name} exited: {log_tail(log_dir, spec)}; see {log_dir}/", file=sys.stderr)
+
+
 def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
     """Start one node; its output goes to `log_dir/<node name>.log`."""
     executable = Path(get_package_prefix(spec.package)) / "lib" / spec.package / spec.executable
@@ -87,13 +92,13 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     processes = []
     try:
         processes += [start_node(spec, log_dir) for spec in others]
-        spin_until(probe, lambda: probe.count_publishers(ESTIMATE_TOPIC) or any(p.poll() is not None
-                                                                                 for p in processes), timeout_s)
-        exited = [(spec, p.returncode) for spec, p in zip(others, processes, strict=True) if p.poll() is not None]
-        if exited:
-            spec, code = exited[0]
-            raise GraphStartError(f"node {spec.name} exited with status {code} while the graph started: "
-                                  f"{log_tail(log_dir, spec) or '(its log is empty)'} (log: {log_dir / spec.name}.log)")
+        spin_until(probe, lambda: probe.count_publishers(ESTIMATE_TOPIC) or first_exited(others, processes),
+                   timeout_s)
+        died = first_exited(others, processes)
+        if died:
+            code = processes[others.index(died)].returncode
+            raise GraphStartError(f"node {died.name} exited with status {code} while the graph started: "
+                                  f"{log_tail(log_dir, died) or '(its log is empty)'} (log: {log_dir / died.name}.log)")
         if not probe.count_publishers(ESTIMATE_TOPIC):
             print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
         processes += [start_node(spec, log_dir) for spec in cameras]

@@ -13,6 +13,8 @@ from tactile_description.value_checks import is_number
 
 # A shell reports a command killed by SIGPIPE as 128 + its number; a command that stops on a closed pipe says so.
 CLOSED_PIPE_EXIT = 128 + signal.SIGPIPE
+#: The same for a command that a Ctrl-C (SIGINT) ends, where it says so in one line instead of a traceback.
+CTRL_C_EXIT = 128 + signal.SIGINT
 #: The exit status of a command refused for its input (argparse's too).
 INPUT_ERROR_EXIT = 2
 

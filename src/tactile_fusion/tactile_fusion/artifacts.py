@@ -207,8 +207,14 @@ def write_json(path: str | Path, data: dict) -> None:
     try:
         replace_file(path, (json.dumps(data, indent=2, sort_keys=False) + "\n").encode())
     except OSError as exc:
-        raise ModelFileError(f"{exc.filename or path} cannot be written ({exc.strerror or exc}): make room on the "
-                             f"disk or make {path.parent} writable, then run the command again") from exc
+        raise unwritable(path, exc, "run the command again") from exc
+
+
+def unwritable(path: Path, exc: OSError, retry: str) -> ModelFileError:
+    """The error of a file that cannot be written (a read-only directory, a full disk), naming the file that failed
+    (`path` or one written on the way to it) and what to do, ending with `retry`."""
+    return ModelFileError(f"{exc.filename or path} cannot be written ({exc.strerror or exc}): make room on the disk "
+                          f"or make {path.parent} writable, then {retry}")
 
 
 #: What a file is written to first, beside itself (`replace_file`).

@@ -21,7 +21,7 @@ import onnx
 import torch
 from torch import nn
 
-from tactile_fusion.artifacts import ModelFileError, discard, replace_file
+from tactile_fusion.artifacts import ModelFileError, discard, replace_file, unwritable
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 #: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
@@ -78,11 +78,8 @@ def save_graph(proto: onnx.ModelProto, path: Path) -> Path:
 
 
 def _unwritable(path: Path, exc: OSError) -> ModelFileError:
-    """The error of a graph file that cannot be written (a read-only directory, a full disk), naming the file that
-    failed (`path` or one written on the way to it)."""
-    return ModelFileError(f"{exc.filename or path} cannot be written ({exc.strerror or exc}): make room on the disk "
-                          f"or make {path.parent} writable, then export again (tactile-fusion export --model "
-                          f"{path.parent})")
+    """artifacts.unwritable for a graph file: export again."""
+    return unwritable(path, exc, f"export again (tactile-fusion export --model {path.parent})")
 
 
 def graph_threshold(metadata: dict[str, str]) -> tuple[bool, float | None]:

@@ -16,17 +16,18 @@ import json
 import sys
 
 from tactile_description import SensorConfigError, load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe, whole_number_argument
+from tactile_description.command_line import (
+    CTRL_C_EXIT,
+    error_exit,
+    stops_quietly_on_closed_pipe,
+    whole_number_argument,
+)
 from tactile_sim.contact import ground_truth_model, press_contact, press_report
 from tactile_sim.dataset import DatasetError, write_dataset
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import MAX_FRAMES, load_scene
 
 MODELS = ("analytic", "numerical")
-
-
-#: Exit status after a Ctrl-C: 128 + SIGINT, as a shell reports a command that SIGINT ended.
-STOPPED_BY_CTRL_C = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C: one line and the shell's status for it, not a traceback
         stopped = "; the data set is left marked incomplete" if args.command == "generate" else ""
         print(f"tactile-sim {args.command}: stopped by Ctrl-C{stopped}", file=sys.stderr)
-        return STOPPED_BY_CTRL_C
+        return CTRL_C_EXIT
     except OSError as exc:  # a file or directory that cannot be read or written (--out /dev/null/x, a full disk)
         problem = f"{exc.strerror or exc}: {exc.filename}" if exc.filename else exc
         return error_exit(f"tactile-sim {args.command}", problem)
