@@ -129,6 +129,7 @@ def cmd_train(args) -> int:
     args.image_size = sensor.cameras[0].output_size[0]
     model_config, train_config = _settings(args, sensor.n_cameras)
     head_extra = _further_draws(args, sensor)
+    _output_dir(args.out)  # once the settings are accepted, before the data is simulated and the model trained
     splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     source = f"dataset {Path(args.dataset).resolve()}" if args.dataset else scene_source(args.scene)
@@ -236,9 +237,11 @@ def cmd_recalibrate(args) -> int:
     # The base model, without the added camera, has the fewest cameras.
     model_config, train_config = _settings(args, sensor.n_cameras - 1, recalibration_epochs=args.recalibration_epochs)
     fractions = _fractions(args.fractions)
+    head_extra = _further_draws(args, sensor)
+    out = _output_dir(args.out)  # once the settings are accepted: the study writes there only at its end
     report = run_recalibration_study(sensor, args.scene, args.dataset, args.frames, added_camera, fractions,
-                                     model_config, train_config, Path(args.out),
-                                     progress=not (args.json or args.quiet), head_extra=_further_draws(args, sensor))
+                                     model_config, train_config, out, progress=not (args.json or args.quiet),
+                                     head_extra=head_extra)
     if args.json:
         print(json.dumps(report))
     else:

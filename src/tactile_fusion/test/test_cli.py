@@ -554,13 +554,16 @@ def test_a_damaged_file_of_a_model_directory_is_one_error_line_naming_it(shipped
     assert re.match(f"tactile-fusion {command.split()[0]}: error: {re.escape(str(shipped_copy))}/{message}", line), line
 
 
+@pytest.mark.parametrize("command", ["eval", "train", "recalibrate"])
 @pytest.mark.parametrize("out", ["file", "file/plots"])
-def test_eval_refuses_an_out_it_cannot_write_before_it_reads_any_data(tmp_path, capsys, out):
+def test_an_out_that_cannot_be_written_is_refused_before_any_data_is_read(tmp_path, capsys, out, command):
+    """eval's plots, train's model and the recalibration study's report (written after half an hour): before,
+    eval and train failed with a traceback after reading or simulating the data, the study at its very end."""
     (tmp_path / "file").write_text("")
     # Checked before the data set is read: the dataset that is not there is not what it reports.
-    line = refusal(capsys, "eval", "--out", tmp_path / out, "--dataset", tmp_path / "no_data", "--quiet")
-    assert line.startswith(f"tactile-fusion eval: error: --out {tmp_path / out} cannot be written to as a directory ("
-                           f"{'File exists' if out == 'file' else 'Not a directory'}"), line
+    line = refusal(capsys, command, "--out", tmp_path / out, "--dataset", tmp_path / "no_data", "--quiet")
+    assert line.startswith(f"tactile-fusion {command}: error: --out {tmp_path / out} cannot be written to as a "
+                           f"directory ({'File exists' if out == 'file' else 'Not a directory'}"), line
     assert line.endswith("give a directory that can be created and written to")
 
 
