@@ -70,9 +70,16 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = ""
     """Write model.json and model.pt into `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    description = {
-        "format_version": FORMAT_VERSION,
-        "sensor_name": sensor_name,
+    write_json(out_dir / MODEL_JSON, {"format_version": FORMAT_VERSION, "sensor_name": sensor_name,
+                                      **model_fields(model)})
+    torch.save(model.state_dict(), out_dir / STATE_DICT)
+    return out_dir
+
+
+def model_fields(model: ForceFusionNet) -> dict:
+    """The fields of model.json that `load_model` builds `model` from, as JSON values. An exported graph names them
+    in its metadata too (export.py), because it has them built in."""
+    return {
         "camera_ids": list(model.camera_ids),
         "rows": model.rows,
         "cols": model.cols,
@@ -81,9 +88,6 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = ""
         "fz_threshold_n": model.fz_threshold_n,
         "model_config": model.config.to_dict(),
     }
-    write_json(out_dir / MODEL_JSON, description)
-    torch.save(model.state_dict(), out_dir / STATE_DICT)
-    return out_dir
 
 
 #: What to do about a damaged file of a model directory.
@@ -156,17 +160,21 @@ def threshold_text(threshold_n: float) -> str:
     return f"{1e3 * threshold_n:.3g} mN"
 
 
+def described_model(model_dir: str | Path, description: dict) -> ForceFusionNet:
+    """The untrained model that the model.json `description` of `model_dir` describes (the defaults of older files
+    filled in); ModelFileError naming the file if its fields do not make a model."""
+    try:
+        return ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
+                              description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
+                              model_components(description), model_threshold(description))
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{Path(model_dir) / MODEL_JSON}: {exc}; {REPLACE_MODEL}") from exc
+
+
 def load_model(model_dir: str | Path) -> ForceFusionNet:
     """The torch model of a model directory, in evaluation mode; ModelFileError naming the file if model.json or
     model.pt cannot be read or do not fit each other."""
-    description = read_model_json(model_dir)
-    components, threshold = model_components(description), model_threshold(description)
-    try:
-        model = ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
-                               description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
-                               components, threshold)
-    except (TypeError, ValueError) as exc:
-        raise ModelFileError(f"{Path(model_dir) / MODEL_JSON}: {exc}; {REPLACE_MODEL}") from exc
+    model = described_model(model_dir, read_model_json(model_dir))
     state_path = Path(model_dir) / STATE_DICT
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")

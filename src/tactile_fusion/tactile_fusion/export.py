@@ -5,8 +5,10 @@ Every graph has the same interface as the model's `forward`:
   reference (C, H, W)    uint8   the cameras' no-contact frames
   bin_forces_n (B, rows, cols, 3) float32 newtons
 The uint8 -> float conversion and the difference are inside the graph, so no caller can get the wrap-around
-of uint8 differences wrong. Each graph also names, in its metadata, the Fz threshold it applies
-(THRESHOLD_METADATA), so that a graph and a model.json of two different models are told apart on loading.
+of uint8 differences wrong. Each graph also names, in its metadata, the model.json fields it has built in (camera
+order, bin grid, force scale, components, Fz threshold, model config: artifacts.model_fields, each as JSON), so that
+a graph and a model.json of two different models, or a model.json edited after export, are told apart on loading
+(`graph_mismatches`).
 """
 
 from __future__ import annotations
@@ -21,15 +23,13 @@ import onnx
 import torch
 from torch import nn
 
-from tactile_fusion.artifacts import ModelFileError, discard, replace_file, unwritable
+from tactile_fusion.artifacts import ModelFileError, discard, model_fields, replace_file, unwritable
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 #: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
 OPSET = 17
 INPUT_NAMES = ("images", "reference")
 OUTPUT_NAME = "bin_forces_n"
-#: Metadata key of the Fz threshold a graph applies (JSON: a number of newtons, or null for none).
-THRESHOLD_METADATA = "fz_threshold_n"
 
 
 class _Float16Graph(nn.Module):
@@ -62,7 +62,7 @@ def export_onnx(model: ForceFusionNet, path: str | Path, precision: str = "fp32"
     c, size = model.n_cameras, model.config.image_size
     example = (torch.zeros(1, c, size, size, dtype=torch.uint8), torch.zeros(c, size, size, dtype=torch.uint8))
     proto = onnx.load_from_string(onnx_bytes(graph, example, OUTPUT_NAME))
-    onnx.helper.set_model_props(proto, {THRESHOLD_METADATA: json.dumps(model.fz_threshold_n)})
+    onnx.helper.set_model_props(proto, {key: json.dumps(value) for key, value in model_fields(model).items()})
     onnx.checker.check_model(proto, full_check=True)
     return save_graph(proto, Path(path))
 
@@ -82,12 +82,20 @@ def _unwritable(path: Path, exc: OSError) -> ModelFileError:
     return unwritable(path, exc, f"export again (tactile-fusion export --model {path.parent})")
 
 
-def graph_threshold(metadata: dict[str, str]) -> tuple[bool, float | None]:
-    """(whether the graph names its Fz threshold, the threshold) from a graph's metadata; graphs exported before the
-    threshold existed name none."""
-    if THRESHOLD_METADATA not in metadata:
-        return False, None
-    return True, json.loads(metadata[THRESHOLD_METADATA])
+def graph_mismatches(metadata: dict[str, str], fields: dict) -> list[str]:
+    """The fields (artifacts.model_fields) of which a graph's metadata names another value than `fields`, each as
+    "<field> <graph's value> in the graph, <value> in model.json". Graphs exported by older versions name fewer fields
+    (none, or only fz_threshold_n); what they do not name is not checked."""
+    return [f"{key} {metadata[key]} in the graph, {json.dumps(value)} in model.json"
+            for key, value in fields.items() if key in metadata and not _names(metadata[key], value)]
+
+
+def _names(text: str, value) -> bool:
+    """Whether the metadata entry `text` is the JSON of `value` (an entry that is not JSON names nothing)."""
+    try:
+        return json.loads(text) == value
+    except ValueError:
+        return False
 
 
 def onnx_bytes(graph: nn.Module, example: tuple[torch.Tensor, torch.Tensor], output_name: str) -> bytes:

@@ -22,13 +22,13 @@ from tactile_fusion.artifacts import (
     ModelFileError,
     backend_file,
     default_model_dir,
+    described_model,
     load_model,
-    model_components,
-    model_threshold,
+    model_fields,
     read_model_json,
 )
 from tactile_fusion.camera_out import with_cameras_at_rest
-from tactile_fusion.export import copy_to_half, graph_threshold
+from tactile_fusion.export import copy_to_half, graph_mismatches
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 BACKENDS = {"onnxruntime": ("fp32", "int8", "fp16"), "torch": ("fp32", "fp16")}
@@ -157,15 +157,17 @@ class OnnxRuntimePredictor(ForcePredictor):
 
     def __init__(self, onnx_path: str | Path, description: dict, precision: str = "fp32",
                  threads: int | None = DEFAULT_THREADS):
-        size = description["model_config"]["image_size"]
-        super().__init__(description["camera_ids"], description["rows"], description["cols"], size, precision,
-                         model_components(description), model_threshold(description))
+        described = described_model(Path(onnx_path).parent, description)
+        super().__init__(described.camera_ids, described.rows, described.cols, described.config.image_size,
+                         precision, described.components, described.fz_threshold_n)
         self.session = _graph_session(Path(onnx_path), threads)
-        named, applied = graph_threshold(self.session.get_modelmeta().custom_metadata_map)
-        if named and applied != self.fz_threshold_n:
-            raise ModelFileError(f"{onnx_path} applies the Fz threshold {applied} N, its model.json says "
-                                 f"{self.fz_threshold_n}: files of two models are mixed; re-export the graphs "
-                                 "(tactile-fusion export --model DIR)")
+        mismatches = graph_mismatches(self.session.get_modelmeta().custom_metadata_map, model_fields(described))
+        if mismatches:
+            raise ModelFileError(f"{onnx_path} was exported from another model than its model.json describes "
+                                 f"({'; '.join(mismatches)}): files of two models are mixed, or model.json was "
+                                 "edited after export; put back the model.json that came with the graphs, or "
+                                 "re-export them from model.pt and this model.json (tactile-fusion export --model "
+                                 f"{Path(onnx_path).parent})")
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]

@@ -1,6 +1,7 @@
 """ONNX export and the inference backends behind one interface: agreement, input checks, precisions."""
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -17,6 +18,7 @@ from tactile_fusion.artifacts import (
     ModelFileError,
     check_model_fits,
     load_model,
+    model_fields,
     save_model,
     write_json,
 )
@@ -291,23 +293,41 @@ def test_a_model_with_an_fz_threshold_applies_it_in_every_backend_and_precision(
         np.testing.assert_allclose(predicted, expected, rtol=0, atol=1e-6, err_msg=f"{backend} {precision}")
 
 
-def test_a_graph_and_a_model_json_of_different_thresholds_are_refused_on_loading(model_dir, tmp_path):
+def test_a_graph_and_a_model_json_that_differ_in_what_the_graph_has_built_in_are_refused_on_loading(model_dir,
+                                                                                                  tmp_path):
     out, _ = model_dir
     model = load_model(out)
     model.fz_threshold_n = 0.002
     save_model(model, tmp_path, "synthetic")
     export_all(model, tmp_path)
-    for name in ONNX_FILES.values():  # every graph names the threshold it applies
-        assert {p.key: p.value for p in onnx.load(str(tmp_path / name)).metadata_props} == {"fz_threshold_n": "0.002"}
     description = json.loads((tmp_path / MODEL_JSON).read_text())
-    for other in (0.003, None):  # model.json of another model (or of one without a threshold)
-        (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "fz_threshold_n": other}))
-        for precision in ONNX_FILES:
-            with pytest.raises(ModelFileError, match="applies the Fz threshold 0.002 N, its model.json says "
-                                                     f"{other}: files of two models are mixed"):
-                load_predictor(tmp_path, "onnxruntime", precision)
-    # A graph exported before graphs named their threshold is taken as model.json says.
+    for name in ONNX_FILES.values():  # every graph names the model.json fields it has built in
+        named = {p.key: json.loads(p.value) for p in onnx.load(str(tmp_path / name)).metadata_props}
+        assert named == {key: description[key] for key in model_fields(model)}, name
+    cameras = description["camera_ids"]
+    edits = {"fz_threshold_n": [0.003, None],  # model.json of another model (or of one without a threshold)
+             "camera_ids": [cameras[1:] + cameras[:1]],  # the cameras' order, which no shape shows
+             "force_scale_n": [[2 * v for v in description["force_scale_n"]]],
+             "model_config": [{**description["model_config"], "dropout": 0.2}]}
+    for key, values in edits.items():
+        for value in values:
+            (tmp_path / MODEL_JSON).write_text(json.dumps({**description, key: value}))
+            for precision in ONNX_FILES:
+                with pytest.raises(ModelFileError, match=rf"exported from another model than its model.json "
+                                                         rf"describes \({key} .* in the graph, "
+                                                         rf"{re.escape(json.dumps(value))} in model.json\): files "
+                                                         "of two models are mixed"):
+                    load_predictor(tmp_path, "onnxruntime", precision)
+    # A graph exported when graphs named their threshold only is checked for that alone ...
+    (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "camera_ids": cameras[::-1]}))
     proto = onnx.load(str(tmp_path / ONNX_FILES["fp32"]))
+    onnx.helper.set_model_props(proto, {"fz_threshold_n": "0.002"})
+    onnx.save(proto, str(tmp_path / ONNX_FILES["fp32"]))
+    assert load_predictor(tmp_path, "onnxruntime").camera_ids == tuple(cameras[::-1])
+    (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "fz_threshold_n": None}))
+    with pytest.raises(ModelFileError, match=r"\(fz_threshold_n 0.002 in the graph, null in model.json\)"):
+        load_predictor(tmp_path, "onnxruntime")
+    # ... and one exported before graphs named anything is taken as model.json says.
     del proto.metadata_props[:]
     onnx.save(proto, str(tmp_path / ONNX_FILES["fp32"]))
     assert load_predictor(tmp_path, "onnxruntime").fz_threshold_n is None
