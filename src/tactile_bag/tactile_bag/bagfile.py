@@ -30,11 +30,12 @@ except ImportError:
 #: rosbag2 metadata version written (Kilted's; `ros2 bag` of Jazzy and later reads it).
 BAG_VERSION = 9
 
-#: What rosbags' readers raise on a damaged bag (bad magic, truncated chunk, lengths out of range, bad YAML), and on a
+#: What rosbags' readers raise on a damaged bag (bad magic, truncated chunk, lengths out of range, bad YAML), on a
 #: zstd-compressed one (rosbag2's FILE or MESSAGE compression, zstd MCAP chunks) whose compressed bytes are cut short
-#: (EOFError) or are not zstd (ZstdError, e.g. metadata that claims zstd over a plain .mcap).
+#: (EOFError) or are not zstd (ZstdError, e.g. metadata that claims zstd over a plain .mcap), and on an lz4 MCAP chunk
+#: whose bytes are not an lz4 frame (the lz4 package raises a plain RuntimeError).
 DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error, EOFError,
-                      ZstdError)
+                      ZstdError, RuntimeError)
 
 
 class BagError(ValueError):

@@ -9,14 +9,19 @@ index, so that frames left out of `frames` stand for bundles lost before the rec
 import shutil
 from pathlib import Path
 
+import lz4.frame
 import numpy as np
 import pytest
 import torch
 from backports import zstd
 from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.storage_mcap import McapReader
 from rosbags.typesys import get_types_from_msg
 
-from tactile_bag.bagfile import BagWriter
+from tactile_bag.bagfile import BAG_VERSION, BagReader, BagWriter
+from tactile_bag.mcap_crcs import fill_mcap_crcs
+from tactile_bag.message_types import bag_typestore
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
@@ -151,6 +156,43 @@ def damaged_zstd_file_bag(request, zstd_file_bag, sim_bag, tmp_path):
     shutil.copy(next(sim_bag.glob("*.mcap")), bag)
     zstd_file_metadata(sim_bag, bag)
     return bag, "Unable to decompress Zstandard data: Unknown frame descriptor"
+
+
+@pytest.fixture
+def lz4_chunk_bag(sim_bag, tmp_path):
+    """sim_bag's messages in lz4-compressed MCAP chunks with their CRCs, as `ros2 bag record` writes them with the
+    storage configuration `compression: Lz4`. No installed package writes lz4 chunks for us (rosbags' Writer offers
+    zstd alone, the `mcap` library is not installed), but rosbags' MCAP writer compresses its chunks with the codec
+    named in two attributes, here set to the lz4 package's frame format, which the MCAP specification prescribes."""
+    bag = tmp_path / "lz4_chunks"
+    writer = Writer(bag, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    writer.storage.compression, writer.storage.compressor = "lz4", lz4.frame.compress
+    with BagReader(sim_bag) as source:
+        typestore = bag_typestore(set(source.topics.values()))
+        connections = {t: writer.add_connection(t, m, typestore=typestore) for t, m in source.topics.items()}
+        for topic, _, time_ns, raw in source.messages():
+            writer.write(connections[topic], time_ns, raw)
+    writer.close()
+    fill_mcap_crcs(next(bag.glob("*.mcap")))
+    return bag
+
+
+@pytest.fixture
+def damaged_lz4_chunk_bag(lz4_chunk_bag):
+    """lz4_chunk_bag with the magic number of its second chunk's lz4 frame zeroed."""
+    mcap = next(lz4_chunk_bag.glob("*.mcap"))
+    reader = McapReader(mcap)
+    reader.open()
+    chunk = reader.chunks[1]
+    reader.close()
+    assert chunk.compression == "lz4"
+    data = bytearray(mcap.read_bytes())
+    frame_at = chunk.chunk_start_offset + 9 + 40 + len("lz4")  # opcode, length, chunk header, compression, size
+    assert data[frame_at:frame_at + 4] == b"\x04\x22\x4d\x18"
+    data[frame_at:frame_at + 4] = bytes(4)
+    mcap.write_bytes(bytes(data))
+    return lz4_chunk_bag
 
 
 @pytest.fixture(scope="session")

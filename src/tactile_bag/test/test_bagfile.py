@@ -158,6 +158,19 @@ def test_a_zstd_chunk_that_does_not_decompress_is_refused(tmp_path):
         list(bag.messages())
 
 
+def test_an_lz4_chunk_bag_reads_back(lz4_chunk_bag, sim_bag):
+    with BagReader(lz4_chunk_bag) as compressed, BagReader(sim_bag) as plain:
+        assert list(compressed.messages()) == list(plain.messages())
+
+
+def test_an_lz4_chunk_that_does_not_decompress_is_refused(damaged_lz4_chunk_bag):
+    """Before: the lz4 package's RuntimeError, a traceback."""
+    with BagReader(damaged_lz4_chunk_bag) as bag, \
+            pytest.raises(BagError, match=rf"^bag {damaged_lz4_chunk_bag} is damaged: reading its messages failed "
+                                          r"\(LZ4F_getFrameInfo failed with code: ERROR_frameType_unknown\)$"):
+        list(bag.messages())
+
+
 def stored_crcs(mcap: Path) -> tuple[list[tuple[int, int]], tuple[int, int], tuple[int, int]]:
     """([(stored CRC, CRC-32 of the records) of every chunk], (stored, computed) data-section CRC, (stored, computed)
     summary CRC) of an MCAP file with uncompressed chunks. The chunks are found through rosbags' reading of the

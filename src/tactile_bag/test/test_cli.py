@@ -98,6 +98,16 @@ def test_play_and_eval_refuse_a_damaged_file_compressed_bag(damaged_zstd_file_ba
         assert error_line(capsys).startswith(expected)
 
 
+def test_play_and_eval_refuse_an_lz4_chunk_that_does_not_decompress(damaged_lz4_chunk_bag, model_dir, capsys):
+    """One line, exit status 2 (before: the lz4 package's RuntimeError, a traceback and exit status 1)."""
+    bag = damaged_lz4_chunk_bag
+    for command in (["play", str(bag), "--rate", "1000", "--wait-subscribers", "0"],
+                    ["eval", str(bag), "--model", str(model_dir), "--backend", "torch"]):
+        assert main(command) == 2
+        assert error_line(capsys) == (f"tactile-bag {command[0]}: error: bag {bag} is damaged: reading its messages "
+                                      "failed (LZ4F_getFrameInfo failed with code: ERROR_frameType_unknown)")
+
+
 def test_play_itself_refuses_a_rate_below_the_slowest(sim_bag):
     """At --rate 1e-300 the bag's 25 ms frame period became a sleep beyond what time.sleep takes (OverflowError)."""
     with pytest.raises(ValueError, match=r"--rate must be a finite number >= 0\.001, got 1e-300"):

@@ -11,11 +11,14 @@
 Without --model, eval, export and bench use the shipped model (models/default); without --scene or --dataset,
 eval uses the model's test set: the held-out 20 % of the data it was trained on (training.json), for a scene
 simulated again from its seed; for the shipped model the default test set, that of the default scene.
+A command that fails (a --dataset that is missing, damaged or of another sensor, for one) leaves behind no empty
+directory that it created for --out.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shlex
@@ -51,6 +54,14 @@ from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
+
+#: The most CPU threads --threads takes. Above the hardware threads of the largest two-socket servers of 2025 (768:
+#: two 192-core CPUs, two threads a core), so that no machine's cores are refused; more threads than cores only take
+#: turns on them. Far below a mistyped count such as 100000000, which went to torch and ONNX Runtime unchecked:
+#: `eval --threads 100000000` took 24 GB of memory until the kernel killed it (ONNX Runtime's thread pool), and torch
+#: crashed (segmentation fault) at its first matrix product. 1024 works with both (on 2 cores ONNX Runtime took 22 s
+#: to load the shipped model with that many threads).
+MAX_THREADS = 1024
 
 
 def _threads(args) -> None:
@@ -189,6 +200,22 @@ def _output_dir(path: str) -> Path:
         raise SettingsError(f"--out {path} cannot be written to as a directory ({exc.strerror or exc}: "
                             f"{exc.filename or path}); give a directory that can be created and written to") from exc
     return out
+
+
+@contextlib.contextmanager
+def _new_out_removed_on_failure(path: str | None):
+    """Run a command with --out `path` (None: no --out): should it fail, the directories of `path` that did not exist
+    before it ran and are empty are removed again: a --dataset refused after --out was created and tried
+    (_output_dir) leaves no empty directory behind. An --out that existed stays, and so does one holding what
+    the command wrote before it failed (train's checkpoints, to resume from)."""
+    new = [] if path is None else [d for d in (Path(path), *Path(path).parents) if not d.exists()]  # deepest first
+    try:
+        yield
+    except BaseException:
+        for directory in new:
+            with contextlib.suppress(OSError):  # never created, or not empty
+                directory.rmdir()
+        raise
 
 
 def cmd_eval(args) -> int:
@@ -380,8 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(p, with_model: bool, threads: int = 1):
         p.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
-        p.add_argument("--threads", type=whole_number_argument(1, "threads"), default=threads,
-                       help="CPU threads (default %(default)s)")
+        p.add_argument("--threads", type=whole_number_argument(1, "threads", maximum=MAX_THREADS), default=threads,
+                       help=f"CPU threads, 1 to {MAX_THREADS} (default %(default)s)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         if with_model:
             p.add_argument("--model", help="model directory (default: the shipped model)")
@@ -450,7 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        with _new_out_removed_on_failure(getattr(args, "out", None)):
+            return args.func(args)
     except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, FrameDataError, SceneError,
             InputError, SettingsError, CheckpointMismatchError, FloatingPointError) as exc:
         return error_exit(f"tactile-fusion {args.command}", exc)

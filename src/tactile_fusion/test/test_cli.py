@@ -430,8 +430,14 @@ def one_camera_sensor(tmp_path) -> Path:
 @pytest.mark.parametrize("args, message", [
     ("eval --backend torch --precision int8",
      "eval: error: the torch backend runs fp32, fp16, not 'int8'; choose one of those or another backend"),
-    ("eval --backend torch --threads -1", "eval: error: argument --threads: must be a whole number of threads >= 1"),
-    ("train --threads 0 --out OUT", "train: error: argument --threads: must be a whole number of threads >= 1"),
+    ("eval --backend torch --threads -1",
+     "eval: error: argument --threads: must be a whole number of threads from 1 to 1024, got '-1'"),
+    ("train --threads 0 --out OUT",
+     "train: error: argument --threads: must be a whole number of threads from 1 to 1024, got '0'"),
+    ("eval --threads 1025 --frames 1",  # unbounded, 100000000 took the memory until the kernel killed the process
+     "eval: error: argument --threads: must be a whole number of threads from 1 to 1024, got '1025'"),
+    ("recalibrate --threads 1025 --out OUT",
+     "recalibrate: error: argument --threads: must be a whole number of threads from 1 to 1024, got '1025'"),
     ("train --frames 2 --out OUT",
      "train: error: argument --frames: must be a whole number of frames >= 3 (a train/val/test split needs 3)"),
     ("bench --runs 0", "bench: error: argument --runs: must be a whole number of runs >= 1, got '0'"),
@@ -455,6 +461,12 @@ def test_bad_arguments_are_refused_with_an_error_line_before_anything_runs(capsy
     assert refusal(capsys, command, *(brief if command in ("train", "recalibrate") else []), *words).startswith(
         f"tactile-fusion {message}")
     assert not (tmp_path / "out").exists()
+
+
+def test_the_most_threads_are_taken():
+    from tactile_fusion.cli import MAX_THREADS, build_parser
+
+    assert MAX_THREADS == 1024 and build_parser().parse_args(["bench", "--threads", "1024"]).threads == MAX_THREADS
 
 
 def test_eval_of_a_dataset_takes_its_first_frames_shows_progress_and_plots_the_sensors_bins(tiny_model, tmp_path,
@@ -565,6 +577,40 @@ def test_an_out_that_cannot_be_written_is_refused_before_any_data_is_read(tmp_pa
     assert line.startswith(f"tactile-fusion {command}: error: --out {tmp_path / out} cannot be written to as a "
                            f"directory ({'File exists' if out == 'file' else 'Not a directory'}"), line
     assert line.endswith("give a directory that can be created and written to")
+
+
+@pytest.fixture(scope="module")
+def refused_datasets(tmp_path_factory) -> dict[str, Path]:
+    """Datasets that eval, train and recalibrate refuse: one that is not there, one whose meta.json is cut short, and
+    one of the nine-camera skin (3 frames)."""
+    from tactile_description import load_sensor
+    from tactile_sim import Simulator, load_scene, write_dataset
+
+    root = tmp_path_factory.mktemp("refused")
+    skin = load_sensor(CONFIG / "skin_3x3.yaml")
+    other_sensor = write_dataset(Simulator(skin), load_scene("paper_grid", skin), root / "skin", progress=False,
+                                 frames=3)
+    damaged = Path(shutil.copytree(other_sensor, root / "damaged"))
+    (damaged / "meta.json").write_text("{")
+    return {"missing": root / "missing", "damaged": damaged, "other_sensor": other_sensor}
+
+
+@pytest.mark.parametrize("command", ["eval", "train", "recalibrate"])
+@pytest.mark.parametrize("dataset, message", [
+    ("missing", "is not a data set: no meta.json"),
+    ("damaged", "meta.json is not readable UTF-8 JSON"),
+    ("other_sensor", "skin has cameras ['cam0'"),
+])
+def test_a_refused_dataset_leaves_no_out_directory_that_the_command_created(refused_datasets, tmp_path, capsys,
+                                                                              command, dataset, message):
+    """--out is created and tried before the dataset is read (the test above); once the dataset is refused, the
+    directories made for --out are gone again (before: an empty --out, here with its parent, stayed). One that existed
+    stays."""
+    new, existing = tmp_path / "results" / "out", tmp_path / "existing"
+    existing.mkdir()
+    for out in (new, existing):
+        assert message in refusal(capsys, command, "--out", out, "--dataset", refused_datasets[dataset], "--quiet")
+    assert list(tmp_path.iterdir()) == [existing] and not any(existing.iterdir())
 
 
 def test_an_export_that_cannot_write_a_graph_leaves_the_previous_one_whole(shipped_copy, capsys):

@@ -54,10 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     generate = commands.add_parser("generate", parents=[common], help="write a data set of a scene")
     generate.add_argument("--scene", default="paper_grid", help="scene file or installed scene name")
-    generate.add_argument("--out", required=True, help="output directory (must be new or empty)")
+    generate.add_argument("--out", required=True, help="output directory (new or empty, or see --overwrite)")
     generate.add_argument("--frames", type=frames, help="only the first N frames")
     generate.add_argument("--model", choices=MODELS, default="analytic", help="ground-truth model")
-    generate.add_argument("--overwrite", action="store_true", help="replace a data set already in --out")
+    generate.add_argument("--overwrite", action="store_true",
+                          help="replace the data set's files in an --out that holds one, complete or not; its other "
+                          "files stay (refused for a non-empty --out without a data set)")
     generate.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     render = commands.add_parser("render", parents=[common], help="PNG previews of a scene")

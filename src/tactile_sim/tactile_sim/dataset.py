@@ -64,16 +64,23 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
                   frames: int | None = None, overwrite: bool = False) -> Path:
     """Stream `scene` (or its first `frames` frames) through the simulator `sim` into `out_dir`; returns the path.
 
-    Refuses a non-empty `out_dir` unless `overwrite` (then only the data set's own files are replaced).
+    Refuses a non-empty `out_dir` unless `overwrite` and it holds a data set, complete or not: then the data set's own
+    files are replaced and every other file stays. One without a data set is refused even with `overwrite`: most
+    likely the wrong directory, whose files of the data set's names would be replaced.
     """
     directory = Path(out_dir)
     if directory.exists() and not directory.is_dir():
         raise DatasetError(f"output {directory} exists and is not a directory; choose another --out")
-    if directory.exists() and any(directory.iterdir()) and not overwrite:
-        raise DatasetError(f"output directory {directory} is not empty; choose a new one or pass overwrite=True "
-                           "(--overwrite)")
+    if directory.exists() and any(directory.iterdir()):
+        if not _holds_dataset(directory):
+            raise DatasetError(f"output directory {directory} is not empty and holds no data set (no meta.json of a "
+                               f"{FORMAT} data set); choose a new or empty one (overwrite, --overwrite, replaces a "
+                               "data set only)")
+        if not overwrite:
+            raise DatasetError(f"output directory {directory} is not empty: it holds a data set; choose a new one or "
+                               "pass overwrite=True (--overwrite) to replace it")
+    scene.validate(sim.sensor)  # before the directory is made: a scene refused leaves none behind
     directory.mkdir(parents=True, exist_ok=True)
-    scene.validate(sim.sensor)
     if frames is not None:
         scene = scene.limited(frames)
     sensor = sim.sensor
@@ -150,6 +157,16 @@ def _read_contacts(directory: Path, frames: int) -> list[list[dict]]:
         raise DatasetError(f"{path} must list the contacts of each of the {frames} frames (a list of mappings per "
                            f"frame), found {found}; regenerate the data set")
     return contacts
+
+
+def _holds_dataset(directory: Path) -> bool:
+    """Whether `directory` holds a data set, complete or not: its meta.json, which write_dataset writes first, is one
+    of this format."""
+    try:
+        meta = _read_json(directory / "meta.json")
+    except DatasetError:
+        return False
+    return isinstance(meta, dict) and meta.get("format") == FORMAT
 
 
 def _meta_count(meta: dict, key: str, meta_path: Path) -> int:

@@ -38,6 +38,17 @@ def test_generate_writes_a_readable_data_set(tmp_path):
     assert ds.images.shape == (6, 4, 128, 128) and ds.forces[..., 2].sum() > 1.0
 
 
+def test_generate_overwrite_refuses_a_directory_without_a_data_set(tmp_path, capsys):
+    from tactile_sim.cli import main
+
+    (tmp_path / "notes.txt").write_text("mine")
+    assert main(["generate", "--scene", "demo", "--out", str(tmp_path), "--frames", "2", "--overwrite"]) == 2
+    assert capsys.readouterr().err == (f"tactile-sim generate: error: output directory {tmp_path} is not empty and "
+                                       "holds no data set (no meta.json of a tactile_sim.dataset data set); choose a "
+                                       "new or empty one (overwrite, --overwrite, replaces a data set only)\n")
+    assert [f.name for f in tmp_path.iterdir()] == ["notes.txt"]
+
+
 def test_ctrl_c_stops_generate_in_one_line_with_the_data_set_left_incomplete(tmp_path):
     """Before: Python's KeyboardInterrupt traceback. The child gets the default SIGINT disposition, so that Python
     installs its Ctrl-C handler even where this test runs as a background job, which starts with SIGINT ignored."""

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tactile_description import load_sensor
-from tactile_sim import DatasetError, Simulator, load_scene, open_dataset, write_dataset
+from tactile_sim import DatasetError, SceneError, Simulator, load_scene, open_dataset, write_dataset
 from tactile_sim.scene import scenes_directory
 
 
@@ -39,6 +39,39 @@ def test_written_data_set_reads_back_as_streamed(sim, written):
 def test_non_empty_output_is_not_overwritten_by_accident(sim, written):
     with pytest.raises(DatasetError, match="not empty"):
         write_dataset(sim, load_scene("effects"), written, progress=False, frames=2)
+
+
+def test_overwrite_replaces_a_data_set_complete_or_not_and_keeps_the_other_files(sim, written, tmp_path):
+    replaced = _copy_of(written, tmp_path / "replaced")
+    meta = json.loads((replaced / "meta.json").read_text())
+    (replaced / "meta.json").write_text(json.dumps(dict(meta, complete=False)))  # as a Ctrl-C leaves it
+    (replaced / "notes.txt").write_text("kept")
+    write_dataset(sim, load_scene("shear"), replaced, progress=False, frames=2, overwrite=True)
+    ds = open_dataset(replaced, sim.sensor)
+    assert len(ds) == 2 and ds.meta["scene"] == "shear" and ds.meta["complete"]
+    assert (replaced / "notes.txt").read_text() == "kept"
+
+
+@pytest.mark.parametrize("meta", [None, '{"format": "some_other_tool"}', "{"])
+def test_overwrite_refuses_a_non_empty_directory_without_a_data_set(sim, tmp_path, meta):
+    """Most likely the wrong directory (before: written into, its files of the data set's names replaced)."""
+    (tmp_path / "images.npy").write_bytes(b"not a data set's")
+    if meta is not None:
+        (tmp_path / "meta.json").write_text(meta)
+    before = {f.name: f.read_bytes() for f in tmp_path.iterdir()}
+    with pytest.raises(DatasetError, match=f"output directory {tmp_path} is not empty and holds no data set .*; choose "
+                                           r"a new or empty one \(overwrite, --overwrite, replaces a data set only\)"):
+        write_dataset(sim, load_scene("effects"), tmp_path, progress=False, frames=2, overwrite=True)
+    assert {f.name: f.read_bytes() for f in tmp_path.iterdir()} == before
+
+
+def test_a_scene_that_does_not_fit_the_sensor_leaves_no_directory(sim, tmp_path):
+    scene_file = tmp_path / "other_cameras.yaml"
+    effects = (scenes_directory() / "effects.yaml").read_text()
+    scene_file.write_text(effects.replace("cameras: [cam1]", "cameras: [cam9]"))
+    with pytest.raises(SceneError, match="cam9"):
+        write_dataset(sim, load_scene(scene_file), tmp_path / "out", progress=False, frames=2)
+    assert not (tmp_path / "out").exists()
 
 
 def _copy_of(written, directory):
