@@ -439,7 +439,7 @@ def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None
     With `sensor`, also checks what depends on it (Scene.validate); the simulator always does before streaming.
     """
     path = Path(path_or_name)
-    if not path.exists() and path.suffix in ("", ".yaml") and path.parent == Path("."):
+    if not path.is_file() and path.suffix in ("", ".yaml") and path.parent == Path("."):
         path = scenes_directory() / f"{path.stem}.yaml"
         if not path.exists():
             known = sorted(p.stem for p in path.parent.glob("*.yaml"))

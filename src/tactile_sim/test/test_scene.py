@@ -216,6 +216,16 @@ def test_installed_scenes_resolve_by_name_with_or_without_the_extension():
     assert load_scene("demo.yaml").name == load_scene("demo").name == "demo"
 
 
+def test_a_directory_of_a_scenes_name_in_the_working_directory_does_not_hide_the_installed_scene(tmp_path,
+                                                                                                 monkeypatch):
+    """`--scene demo` run where a folder `demo` lies (a data set written there, say) reads the installed scene."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo").mkdir()
+    assert load_scene("demo").name == "demo"
+    (tmp_path / "demo.yaml").write_text(yaml.safe_dump({**_scene(), "name": "mine"}))  # a file of the name given is
+    assert load_scene("demo.yaml").name == "mine"
+
+
 def test_unknown_scene_names_list_the_installed_ones(tmp_path):
     with pytest.raises(SceneError, match="installed scenes are .*paper_grid"):
         load_scene("no_such_scene")
