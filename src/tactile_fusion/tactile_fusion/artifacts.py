@@ -2,7 +2,7 @@
 
   model.json          model config, camera ids, bin grid, force scale, estimated components, Fz threshold, sensor
                       name (what `load_model` needs)
-  model.pt            the torch state dict
+  model.pt            the torch state dict, and the model.json fields it was trained with (weights_fields)
   model.onnx          float32 ONNX graph           (export.py)
   model_int8.onnx     int8-quantized ONNX graph    (fusion layer in float)
   model_fp16.onnx     float16 ONNX graph
@@ -72,7 +72,7 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = ""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(out_dir / MODEL_JSON, {"format_version": FORMAT_VERSION, "sensor_name": sensor_name,
                                       **model_fields(model)})
-    torch.save(model.state_dict(), out_dir / STATE_DICT)
+    torch.save({**model.state_dict(), WEIGHTS_FIELDS_KEY: weights_fields(model)}, out_dir / STATE_DICT)
     return out_dir
 
 
@@ -88,6 +88,25 @@ def model_fields(model: ForceFusionNet) -> dict:
         "fz_threshold_n": model.fz_threshold_n,
         "model_config": model.config.to_dict(),
     }
+
+
+#: The entry of model.pt that names the model.json fields its weights were trained with (`weights_fields`).
+WEIGHTS_FIELDS_KEY = "model_json_fields"
+
+
+def weights_fields(model: ForceFusionNet) -> dict:
+    """What model.pt names of model.json (`load_model` checks it): every field but the Fz threshold, which `export
+    --fit-threshold` sets without writing model.pt again. The weights show the grid and the camera count in their
+    shapes, but not the cameras' order or names, and the force scale they hold is taken over model.json's."""
+    return {key: value for key, value in model_fields(model).items() if key != "fz_threshold_n"}
+
+
+def mismatched_fields(named: Mapping, fields: dict, where: str) -> list[str]:
+    """The fields (model_fields) to which `named`, what a model file names of model.json, gives another value, each
+    as "<field> <value named> in <where>, <value> in model.json". What it does not name is not checked (files written
+    before they named it)."""
+    return [f"{key} {json.dumps(named[key])} in {where}, {json.dumps(value)} in {MODEL_JSON}"
+            for key, value in fields.items() if key in named and named[key] != value]
 
 
 #: What to do about a damaged file of a model directory.
@@ -175,6 +194,7 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
     """The torch model of a model directory, in evaluation mode; ModelFileError naming the file if model.json or
     model.pt cannot be read or do not fit each other."""
     model = described_model(model_dir, read_model_json(model_dir))
+    described = model_fields(model)  # before the weights bring their own force scale
     state_path = Path(model_dir) / STATE_DICT
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")
@@ -182,11 +202,20 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
         state = torch.load(state_path, map_location="cpu", weights_only=True)
         if not isinstance(state, Mapping):  # load_state_dict's TypeError would not say which file
             raise RuntimeError(f"it holds a {type(state).__name__}, not a state dict")
+        state = dict(state)
+        named = state.pop(WEIGHTS_FIELDS_KEY, {})  # none in a model.pt saved before it named them
+        if not isinstance(named, Mapping):
+            raise RuntimeError(f"its {WEIGHTS_FIELDS_KEY} is a {type(named).__name__}, not a mapping")
         model.load_state_dict(state)
     except (RuntimeError, EOFError, OSError, pickle.UnpicklingError) as exc:  # OSError: a directory, unreadable
         reason = " ".join(str(exc).split()) or type(exc).__name__  # an empty file: a bare EOFError
         raise ModelFileError(f"{state_path} cannot be read or does not fit {MODEL_JSON} ({reason}): the file is "
                              f"damaged or of another model; {REPLACE_MODEL}") from exc
+    mismatches = mismatched_fields(named, described, "the weights")
+    if mismatches:
+        raise ModelFileError(f"{state_path} holds the weights of another model than its {MODEL_JSON} describes "
+                             f"({'; '.join(mismatches)}): files of two models are mixed, or {MODEL_JSON} was edited "
+                             f"after training; put back the {MODEL_JSON} that came with the weights")
     return model.eval()
 
 

@@ -42,7 +42,7 @@ from tactile_fusion.artifacts import (
     threshold_text,
 )
 from tactile_fusion.data import DatasetMismatchError, FrameDataError, load_dataset_frames
-from tactile_fusion.inference import BACKENDS, PRECISIONS, InputError, check_backend, load_predictor
+from tactile_fusion.inference import BACKENDS, MAX_THREADS, PRECISIONS, InputError, check_backend, load_predictor
 from tactile_fusion.metrics import (
     CONTACT_LEVEL_N,
     contact_level_argument,
@@ -54,14 +54,6 @@ from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
 from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
-
-#: The most CPU threads --threads takes. Above the hardware threads of the largest two-socket servers of 2025 (768:
-#: two 192-core CPUs, two threads a core), so that no machine's cores are refused; more threads than cores only take
-#: turns on them. Far below a mistyped count such as 100000000, which went to torch and ONNX Runtime unchecked:
-#: `eval --threads 100000000` took 24 GB of memory until the kernel killed it (ONNX Runtime's thread pool), and torch
-#: crashed (segmentation fault) at its first matrix product. 1024 works with both (on 2 cores ONNX Runtime took 22 s
-#: to load the shipped model with that many threads).
-MAX_THREADS = 1024
 
 
 def _threads(args) -> None:

@@ -23,7 +23,14 @@ import onnx
 import torch
 from torch import nn
 
-from tactile_fusion.artifacts import ModelFileError, discard, model_fields, replace_file, unwritable
+from tactile_fusion.artifacts import (
+    ModelFileError,
+    discard,
+    mismatched_fields,
+    model_fields,
+    replace_file,
+    unwritable,
+)
 from tactile_fusion.model import ForceFusionNet, difference_images
 
 #: ONNX opset of the exported graphs (supported by onnxruntime >= 1.13 and the quantization tools).
@@ -83,19 +90,17 @@ def _unwritable(path: Path, exc: OSError) -> ModelFileError:
 
 
 def graph_mismatches(metadata: dict[str, str], fields: dict) -> list[str]:
-    """The fields (artifacts.model_fields) of which a graph's metadata names another value than `fields`, each as
-    "<field> <graph's value> in the graph, <value> in model.json". Graphs exported by older versions name fewer fields
-    (none, or only fz_threshold_n); what they do not name is not checked."""
-    return [f"{key} {metadata[key]} in the graph, {json.dumps(value)} in model.json"
-            for key, value in fields.items() if key in metadata and not _names(metadata[key], value)]
+    """artifacts.mismatched_fields of what a graph's metadata names (JSON; an entry that is not JSON is compared as
+    its text, which no field equals). Graphs exported by older versions name fewer fields (none, or only
+    fz_threshold_n)."""
+    return mismatched_fields({key: _json_or_text(text) for key, text in metadata.items()}, fields, "the graph")
 
 
-def _names(text: str, value) -> bool:
-    """Whether the metadata entry `text` is the JSON of `value` (an entry that is not JSON names nothing)."""
+def _json_or_text(text: str):
     try:
-        return json.loads(text) == value
+        return json.loads(text)
     except ValueError:
-        return False
+        return text
 
 
 def onnx_bytes(graph: nn.Module, example: tuple[torch.Tensor, torch.Tensor], output_name: str) -> bytes:

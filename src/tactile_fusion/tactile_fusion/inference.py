@@ -35,6 +35,13 @@ BACKENDS = {"onnxruntime": ("fp32", "int8", "fp16"), "torch": ("fp32", "fp16")}
 #: Every precision of some backend, for command-line choices.
 PRECISIONS = tuple(dict.fromkeys(p for precisions in BACKENDS.values() for p in precisions))
 DEFAULT_THREADS = 1
+#: The most CPU threads a predictor takes (tactile-fusion --threads, the fusion node's `threads`): above the hardware
+#: threads of the largest two-socket servers of 2025 (768: two 192-core CPUs, two threads a core), so that no machine's
+#: cores are refused; more threads than cores only take turns on them. Far below a mistyped count such as 100000000,
+#: which went to torch and ONNX Runtime unchecked: `eval --threads 100000000` took 24 GB of memory until the kernel
+#: killed it (ONNX Runtime's thread pool), and torch crashed (segmentation fault) at its first matrix product. 1024
+#: works with both (on 2 cores ONNX Runtime took 22 s to load the shipped model with that many threads).
+MAX_THREADS = 1024
 
 
 class InputError(ValueError):
@@ -166,8 +173,8 @@ class OnnxRuntimePredictor(ForcePredictor):
             raise ModelFileError(f"{onnx_path} was exported from another model than its model.json describes "
                                  f"({'; '.join(mismatches)}): files of two models are mixed, or model.json was "
                                  "edited after export; put back the model.json that came with the graphs, or "
-                                 "re-export them from model.pt and this model.json (tactile-fusion export --model "
-                                 f"{Path(onnx_path).parent})")
+                                 f"re-export them (tactile-fusion export --model {Path(onnx_path).parent}), which "
+                                 "takes model.json's Fz threshold and refuses its other edits")
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]

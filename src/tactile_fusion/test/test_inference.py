@@ -15,6 +15,7 @@ from tactile_fusion.artifacts import (
     ONNX_FILES,
     PARTIAL_SUFFIX,
     STATE_DICT,
+    WEIGHTS_FIELDS_KEY,
     ModelFileError,
     check_model_fits,
     load_model,
@@ -24,7 +25,7 @@ from tactile_fusion.artifacts import (
 )
 from tactile_fusion.camera_out import rest_view, with_cameras_at_rest
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
-from tactile_fusion.inference import InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
+from tactile_fusion.inference import BACKENDS, InputError, OnnxRuntimePredictor, TorchPredictor, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig
 from tactile_fusion.pipeline import export_all
 from tactile_fusion.sources import ImageSource
@@ -331,6 +332,36 @@ def test_a_graph_and_a_model_json_that_differ_in_what_the_graph_has_built_in_are
     del proto.metadata_props[:]
     onnx.save(proto, str(tmp_path / ONNX_FILES["fp32"]))
     assert load_predictor(tmp_path, "onnxruntime").fz_threshold_n is None
+
+
+def test_weights_and_a_model_json_that_differ_in_what_the_weights_were_trained_with_are_refused(model_dir, tmp_path):
+    out, _ = model_dir
+    model = load_model(out)
+    save_model(model, tmp_path, "synthetic")
+    description = json.loads((tmp_path / MODEL_JSON).read_text())
+    named = torch.load(tmp_path / STATE_DICT, weights_only=True)[WEIGHTS_FIELDS_KEY]
+    assert named == {key: description[key] for key in model_fields(model) if key != "fz_threshold_n"}
+    cameras = description["camera_ids"]
+    edits = {"camera_ids": cameras[1:] + cameras[:1],  # before: taken, the estimates silently wrong
+             "force_scale_n": [2 * v for v in description["force_scale_n"]],  # before: the weights' scale taken
+             "model_config": {**description["model_config"], "dropout": 0.2}}
+    for key, value in edits.items():
+        (tmp_path / MODEL_JSON).write_text(json.dumps({**description, key: value}))
+        for precision in BACKENDS["torch"]:
+            with pytest.raises(ModelFileError, match=rf"model.pt holds the weights of another model than its "
+                                                     rf"model.json describes \({key} .* in the weights, "
+                                                     rf"{re.escape(json.dumps(value))} in model.json\): files of "
+                                                     "two models are mixed"):
+                load_predictor(tmp_path, "torch", precision)
+    # The Fz threshold is not the weights': export --fit-threshold sets it in model.json alone.
+    (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "fz_threshold_n": 0.004}))
+    assert load_predictor(tmp_path, "torch").fz_threshold_n == 0.004
+    # A model.pt saved before it named the fields is taken as model.json says.
+    state = torch.load(tmp_path / STATE_DICT, weights_only=True)
+    del state[WEIGHTS_FIELDS_KEY]
+    torch.save(state, tmp_path / STATE_DICT)
+    (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "camera_ids": cameras[::-1]}))
+    assert load_predictor(tmp_path, "torch").camera_ids == tuple(cameras[::-1])
 
 
 def test_a_model_json_without_an_fz_threshold_has_none_and_a_bad_one_is_refused(model_dir, tmp_path):

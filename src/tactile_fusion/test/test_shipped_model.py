@@ -10,15 +10,19 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
+import torch
 
 from tactile_description import load_sensor
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     ONNX_FILES,
+    STATE_DICT,
+    WEIGHTS_FIELDS_KEY,
     default_model_dir,
     load_model,
     model_fields,
     read_model_json,
+    weights_fields,
 )
 from tactile_fusion.bench import recorded_accuracy
 from tactile_fusion.data import simulate_frames
@@ -55,14 +59,16 @@ def test_shipped_model_fits_the_reference_sensor(shipped):
     assert (description["rows"], description["cols"]) == frames.bin_forces_n.shape[1:3]
 
 
-def test_shipped_graphs_name_the_model_they_were_exported_from(shipped):
-    """Each shipped graph names every model.json field it has built in, the camera order included, so that an edited
-    model.json is refused (test_inference has the refusals)."""
+def test_shipped_graphs_and_weights_name_the_model_they_were_exported_from(shipped):
+    """Each shipped graph names every model.json field it has built in, the camera order included, and model.pt all
+    but the Fz threshold, so that an edited model.json is refused (test_inference has the refusals)."""
     model_dir, _, _ = shipped
     description = read_model_json(model_dir)
     for name in ONNX_FILES.values():
         named = {p.key: json.loads(p.value) for p in onnx.load(str(model_dir / name)).metadata_props}
         assert named == {key: description[key] for key in model_fields(load_model(model_dir))}, name
+    weights = torch.load(model_dir / STATE_DICT, weights_only=True)[WEIGHTS_FIELDS_KEY]
+    assert weights == {key: description[key] for key in weights_fields(load_model(model_dir))}
 
 
 def test_shipped_metrics_are_of_the_shipped_files(shipped):
