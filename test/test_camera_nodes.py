@@ -6,6 +6,7 @@ rest: real node processes over Fast DDS on loopback."""
 
 import itertools
 import re
+import subprocess
 import time
 
 import numpy as np
@@ -19,6 +20,7 @@ from tactile_bringup.processes import spin_until, start_node, stop_nodes
 from tactile_camera_driver.camera_node import CameraNode
 from tactile_camera_driver.sim_camera_node import SimCameraNode
 from tactile_conversions.images import mono8_to_msg
+from tactile_conversions.parameters import ParameterError
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_description import default_sensor_path, load_sensor
 from tactile_fusion.bundle_node import DROP_LOG_PERIOD_S, BundleNode
@@ -67,6 +69,12 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     rclpy.try_shutdown()
     sim = ros_args_node(SimCameraNode, {"rate_hz": "20", "stamp_jitter_s": "0"})
     assert sim.timer.timer_period_ns == 50_000_000 and sim.stamp_jitter_s == 0.0
+    rclpy.try_shutdown()
+    sim = ros_args_node(SimCameraNode, {"stamp_jitter_s": "0.025", "loop": "false"})  # one frame period at 40 Hz
+    assert sim.stamp_jitter_s == 0.025 and sim.loop is False
+    rclpy.try_shutdown()
+    sim = ros_args_node(SimCameraNode, {"rate_hz": "1000"})  # the default jitter, 2 ms, is cut to the frame period
+    assert sim.timer.timer_period_ns == 1_000_000 and sim.stamp_jitter_s == 0.001
 
 
 @pytest.mark.parametrize("node_class, parameters, message", [
@@ -90,13 +98,55 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (CameraNode, {"rate_hz": "1e-12"}, "tactile_camera: parameter rate_hz must be at least 1.15741e-05 Hz"),
     (FusionNode, {"markers_rate_hz": "1e-12"}, "parameter markers_rate_hz must be at least 1.15741e-05 Hz (once a "
                                                "day), got 1e-12 (to publish no markers, set publish_markers false)"),
-    (FusionNode, {"threads": "0"}, "tactile_fusion: parameter threads must be a whole number >= 1, got 0"),
+    (FusionNode, {"threads": "0"}, "tactile_fusion: parameter threads must be a whole number from 1 to 1024, got 0"),
+    # went to ONNX Runtime, whose thread pool took 24 GB for 100000000 threads
+    (FusionNode, {"threads": "1025"}, "parameter threads must be a whole number from 1 to 1024, got 1025"),
+    # ended the node with load_predictor's ValueError traceback
+    (FusionNode, {"precision": "int4"}, "tactile_fusion: parameters backend and precision: the onnxruntime backend "
+                                        "runs fp32, int8, fp16, not 'int4'"),
+    (FusionNode, {"backend": "tensorrt"}, "parameters backend and precision: backend must be one of ['onnxruntime', "
+                                          "'torch'], got 'tensorrt'"),
     (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number >= 1, got 2.5"),
+    # a timer of period 0 (1e-12 s rounded to whole nanoseconds), which fires on every spin
+    (SimCameraNode, {"rate_hz": "1e12"}, "tactile_sim_cameras: parameter rate_hz must be at most 1000 Hz, got "
+                                         "1000000000000.0"),
+    (CameraNode, {"rate_hz": "1001"}, "tactile_camera: parameter rate_hz must be at most 1000 Hz, got 1001"),
+    (FusionNode, {"markers_rate_hz": "1e12"}, "parameter markers_rate_hz must be at most 1000 Hz, got 1000000000000.0"),
+    # stamps past what a ROS Time holds: the node failed at its first frame
+    (SimCameraNode, {"stamp_jitter_s": "1e12"}, "tactile_sim_cameras: parameter stamp_jitter_s must be at most one "
+                                                "frame period, 0.025 s at rate_hz 40, got 1000000000000.0"),
+    (SimCameraNode, {"rate_hz": "100", "stamp_jitter_s": "0.02"}, "parameter stamp_jitter_s must be at most one "
+                                                                  "frame period, 0.01 s at rate_hz 100, got 0.02"),
+    # rclpy's typed declarations refused these with an InvalidParameterTypeException traceback naming no node
+    (SimCameraNode, {"loop": "0"}, "tactile_sim_cameras: parameter loop must be a bool (true or false), got 0"),
+    (SimCameraNode, {"scene": "3"}, "tactile_sim_cameras: parameter scene must be a string, got 3"),
+    (CameraNode, {"loop": "'no'"}, "tactile_camera: parameter loop must be a bool (true or false), got 'no'"),
+    (CameraNode, {"camera_id": "3"}, "tactile_camera: parameter camera_id must be a string, got 3"),
+    (CameraNode, {"camera_id": "cam9"}, "tactile_camera: parameter camera_id must name a camera of the sensor "
+                                        "description (['cam0', 'cam1', 'cam2', 'cam3']), got 'cam9'"),
+    (BundleNode, {"sensor_config": "1.5"}, "tactile_bundle: parameter sensor_config must be a string, got 1.5"),
+    (FusionNode, {"publish_markers": "1"}, "tactile_fusion: parameter publish_markers must be a bool (true or "
+                                           "false), got 1"),
+    (FusionNode, {"backend": "2"}, "tactile_fusion: parameter backend must be a string, got 2"),
 ])
 def test_bad_parameter_values_are_refused_naming_the_parameter(ros_args_node, node_class, parameters, message):
-    with pytest.raises(ValueError) as refused:
+    """A ParameterError: run_node ends the node with its message in one line and exit code 2."""
+    with pytest.raises(ParameterError) as refused:
         ros_args_node(node_class, parameters)
     assert message in str(refused.value)
+
+
+@pytest.mark.parametrize("executable, parameter, line", [
+    ("sim_camera_node", "loop:=0", "tactile_sim_cameras: parameter loop must be a bool (true or false), got 0"),
+    ("camera_node", "rate_hz:=1e12", "tactile_camera: parameter rate_hz must be at most 1000 Hz, got 1000000000000.0"),
+])
+def test_a_node_refusing_a_parameter_says_why_in_one_line_and_exits_with_status_2(ros_domain, executable, parameter,
+                                                                                   line):
+    """As the command-line tools refuse their input; `-p loop:=0` ended in rclpy's InvalidParameterTypeException
+    traceback (exit code 1), and `-p rate_hz:=1e12` started a camera node whose timer had a period of 0."""
+    run = subprocess.run([executable, "--ros-args", "-p", f"sensor_config:={CONFIG}", "-p", parameter],
+                         capture_output=True, text=True, timeout=60)
+    assert (run.returncode, run.stderr) == (2, line + "\n"), run.stderr
 
 
 def wait_for_log(path, text: str, timeout_s: float) -> str:
@@ -220,3 +270,31 @@ def test_the_bundle_node_starts_over_when_stamps_jump_back_and_logs_what_it_drop
     assert f"no images from ['{first_camera}']" in log and f"cameras ['{first_camera}'] are back" in log, log
     assert log.count("are back") == 1, log  # not at start-up
     assert re.search(r"the synchroniser dropped \d+ image\(s\) \(.*reset \d+", log), log
+
+
+@pytest.mark.system
+def test_the_bundle_node_logs_its_last_drops_at_ctrl_c_without_a_rosout_error(ros_probe, tmp_path):
+    """The drops since the last report are logged when the node stops, after the Ctrl-C has shut its context down:
+    the line was printed, followed by "Failed to publish log message to rosout: publisher's context is invalid"."""
+    log_path = tmp_path / "bundle.log"
+    cameras = FakeCameras(ros_probe, load_sensor().camera_ids)
+    process = start_node(NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": CONFIG}), tmp_path)
+    try:
+        assert spin_until(ros_probe, lambda: all(p.get_subscription_count() for p in cameras.publishers.values()),
+                          30.0)
+        stamp_s = 100.0
+        cameras.play(stamp_s, 4)
+        cameras.play(stamp_s + 3 * FakeCameras.PERIOD_S, 1)  # the last frame again: dropped, reported at once
+        deadline = time.monotonic() + 10.0
+        while "the synchroniser dropped" not in log_path.read_text() and time.monotonic() < deadline:
+            stamp_s += FakeCameras.PERIOD_S  # the cameras go on, so that none is left out of the bundles
+            cameras.play(stamp_s + 3 * FakeCameras.PERIOD_S, 1)
+        cameras.play(stamp_s + 3 * FakeCameras.PERIOD_S, 1)  # and again: reported when the node stops
+        cameras.play(stamp_s + 4 * FakeCameras.PERIOD_S, 4)
+        running = process.poll() is None
+    finally:
+        codes = stop_nodes([process])
+    log = log_path.read_text()
+    assert running and codes == [0], log
+    assert log.count("the synchroniser dropped") == 2, log  # at once, and at the stop, within DROP_LOG_PERIOD_S
+    assert "Failed to publish log message to rosout" not in log, log

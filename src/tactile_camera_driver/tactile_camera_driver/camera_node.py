@@ -29,7 +29,7 @@ from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import DYNAMIC, positive_float, rate_hz
+from tactile_conversions.parameters import DYNAMIC, ParameterError, boolean, positive_float, rate_hz, text
 from tactile_conversions.topics import camera_topic
 from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
@@ -55,15 +55,15 @@ class CameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_camera")
         self.capture: cv2.VideoCapture | None = None  # first: rclpy destroys the node even if __init__ fails
-        sensor_config = self.declare_parameter("sensor_config", "").value
-        self.camera_id = self.declare_parameter("camera_id", "cam0").value
+        sensor_config = text(self, "sensor_config", "")
+        self.camera_id = text(self, "camera_id", "cam0")
         self.source = self.declare_source()
-        self.loop = bool(self.declare_parameter("loop", True).value)
+        self.loop = boolean(self, "loop", True)
         self.reopen_period_s = positive_float(self, "reopen_period_s", 1.0)
         sensor = load_sensor(sensor_config or None)
         if self.camera_id not in sensor.camera_ids:
-            raise ValueError(f"camera_id {self.camera_id!r} is not in the sensor description "
-                             f"({list(sensor.camera_ids)})")
+            raise ParameterError(f"{self.get_name()}: parameter camera_id must name a camera of the sensor description "
+                                 f"({list(sensor.camera_ids)}), got {self.camera_id!r}")
         self.camera = sensor.cameras[sensor.camera_ids.index(self.camera_id)]
         frame_rate_hz = rate_hz(self, "rate_hz", sensor.frame_rate_hz)
         self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
@@ -80,8 +80,8 @@ class CameraNode(Node):
             return int(value)
         if is_whole_number(value, 0) or (isinstance(value, str) and value):
             return value
-        raise ValueError(f"{self.get_name()}: parameter source must be a device index (an integer >= 0), a device "
-                         f"path or a video file, got {value!r}")
+        raise ParameterError(f"{self.get_name()}: parameter source must be a device index (an integer >= 0), a device "
+                             f"path or a video file, got {value!r}")
 
     def destroy_node(self) -> None:
         if self.capture is not None:

@@ -3,7 +3,8 @@
 Plays a simulator scene (default `demo`, looped) at the sensor's frame rate and publishes each camera's
 128 x 128 mono8 image on `/tactile/<camera_id>/image` with sensor-data QoS, stamped with the capture time plus
 a random delay drawn afresh for each image, uniform in [0, `stamp_jitter_s`] (the spread of stamps of cameras that
-are not triggered together; 0 stamps every image with the capture time). A camera that the scene drops or freezes
+are not triggered together; 0 stamps every image with the capture time). `stamp_jitter_s` is at most one frame
+period (`declare_stamp_jitter`). A camera that the scene drops or freezes
 publishes nothing for that frame, exactly like a broken camera. With `loop` false the node says once that the
 scene ended and publishes nothing more (it keeps running). The scene's ground truth goes out on
 `/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistribution) for live evaluation.
@@ -19,23 +20,26 @@ from sensor_msgs.msg import Image
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import positive_float, rate_hz
+from tactile_conversions.parameters import ParameterError, boolean, positive_float, rate_hz, text
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import FORCE_COMPONENTS, load_sensor
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import Simulator, load_scene
 
+#: Default `stamp_jitter_s` (s), or one frame period where that is shorter.
+STAMP_JITTER_S = 0.002
+
 
 class SimCameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_sim_cameras")
-        sensor_config = self.declare_parameter("sensor_config", "").value
-        self.scene_name = self.declare_parameter("scene", "demo").value
-        self.loop = bool(self.declare_parameter("loop", True).value)
-        self.stamp_jitter_s = positive_float(self, "stamp_jitter_s", 0.002, allow_zero=True)
+        sensor_config = text(self, "sensor_config", "")
+        self.scene_name = text(self, "scene", "demo")
+        self.loop = boolean(self, "loop", True)
         self.sensor = load_sensor(sensor_config or None)
         frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
+        self.stamp_jitter_s = self.declare_stamp_jitter(frame_rate_hz)
         self.simulator = Simulator(self.sensor)
         self.scene = load_scene(self.scene_name, self.sensor)
         self.frames = self.simulator.stream(self.scene)
@@ -46,6 +50,23 @@ class SimCameraNode(Node):
         self.timer = self.create_timer(1.0 / frame_rate_hz, self.publish_frame)
         self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at "
                                f"{frame_rate_hz:.1f} Hz for cameras {list(self.sensor.camera_ids)}")
+
+    def declare_stamp_jitter(self, frame_rate_hz: float) -> float:
+        """The `stamp_jitter_s` parameter: from 0 to one frame period.
+
+        Cameras that run at the same rate without a common trigger capture at most one frame period apart, and a
+        jitter within a frame period keeps every camera's own stamps in order while frames come a period apart
+        (frame k + 1 is stamped no earlier than the latest stamp frame k can get), as a real camera's are. A larger
+        one made stamps no camera gives: out of order within a camera, and with `-p stamp_jitter_s:=1e12` past what a
+        ROS Time holds, which ended the node at its first frame with a traceback ("a ROS time must be a finite number
+        below 2**31 s").
+        """
+        frame_period_s = 1.0 / frame_rate_hz
+        jitter_s = positive_float(self, "stamp_jitter_s", min(STAMP_JITTER_S, frame_period_s), allow_zero=True)
+        if jitter_s > frame_period_s:
+            raise ParameterError(f"{self.get_name()}: parameter stamp_jitter_s must be at most one frame period, "
+                                 f"{frame_period_s:g} s at rate_hz {frame_rate_hz:g}, got {jitter_s!r}")
+        return jitter_s
 
     def publish_frame(self) -> None:
         frame = next(self.frames, None)

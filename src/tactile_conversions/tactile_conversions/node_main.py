@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import faulthandler
 import signal
+import sys
 import traceback
 from collections.abc import Callable
 
 import rclpy
 from rclpy.node import Node
 
+from tactile_conversions.parameters import ParameterError
 from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_description.command_line import INPUT_ERROR_EXIT
 
 #: How long the middleware may take to destroy the node and the context once the node has stopped. Fast DDS 3.2.3
 #: (the newest wheel) can deadlock while it deletes the participant if a discovery message about a peer that is
@@ -24,8 +27,10 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
 
     rclpy's signal handler shuts the ROS context down at once, from another thread, wherever the node is: in
     its constructor or in a callback a `create_*` or `publish` then fails ("context is invalid"). Such an
-    error after shutdown was requested is the shutdown itself, so it ends the node cleanly (exit code 0). Any
-    other error is printed with its traceback and ends the process with exit code 1 (SystemExit(1)).
+    error after shutdown was requested is the shutdown itself, so it ends the node cleanly (exit code 0). A
+    parameter the node refuses (ParameterError, whose message names the node and the parameter) is printed in one line
+    on stderr and ends the process with exit code 2 (SystemExit(INPUT_ERROR_EXIT)), as a command line refuses its
+    input. Any other error is printed with its traceback and ends the process with exit code 1 (SystemExit(1)).
 
     Once the node is shutting down, SIGINT is ignored (and stays so: the process is ending), so that a repeated
     Ctrl-C does not interrupt the shutdown.
@@ -41,14 +46,17 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
     faulthandler.register(signal.SIGUSR1)
     rclpy.init(args=args)
     node = None
-    failed = False
+    exit_code = 0
     try:
         node = make_node()
         rclpy.spin(node)
+    except ParameterError as exc:
+        print(exc, file=sys.stderr)
+        exit_code = INPUT_ERROR_EXIT
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             traceback.print_exc()
-            failed = True
+            exit_code = 1
     finally:
         # A repeated Ctrl-C (`stop_nodes` repeats it) must not interrupt the shutdown itself: once rclpy's handler
         # is gone (try_shutdown restores Python's), it would raise KeyboardInterrupt here and end the node with -2.
@@ -61,5 +69,5 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
         finally:
             faulthandler.cancel_dump_traceback_later()  # also when the teardown raised: never exit later
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if failed:
-        raise SystemExit(1)
+    if exit_code:
+        raise SystemExit(exit_code)

@@ -8,7 +8,14 @@ any type, and the node checks and converts it itself. A check written `x <= 0` l
 
 A timer's period is passed to rcl as int64 nanoseconds: rclpy fails on a longer one than 292 years with a pybind
 TypeError that names no parameter (`-p camera_timeout_s:=1e12`, `-p rate_hz:=1e-12`). `period_s` and `rate_hz`, for
-the parameters a timer is built from, take at most a period of `MAX_PERIOD_S` (a day), far below that.
+the parameters a timer is built from, take at most a period of `MAX_PERIOD_S` (a day), far below that. A period is
+also rounded to whole nanoseconds: `-p rate_hz:=1e12` made a timer of period 0, which fires on every spin;
+`rate_hz` takes at most `MAX_RATE_HZ`.
+
+Switches and names (`boolean`, `text`) are declared with `DYNAMIC` too: declared with their type, `-p loop:=0` or
+`-p scene:=3` ended in rclpy's InvalidParameterTypeException traceback, which names neither the node nor what the
+parameter takes. Every refusal is a `ParameterError`, which `node_main.run_node` reports in one line on stderr before
+it ends the node with exit status 2, as a command line refuses its input.
 """
 
 from __future__ import annotations
@@ -24,29 +31,38 @@ DYNAMIC = ParameterDescriptor(dynamic_typing=True)
 #: The longest period or timeout that period_s takes, and one over the lowest rate that rate_hz takes: one day.
 MAX_PERIOD_S = 86_400.0
 MIN_RATE_HZ = 1.0 / MAX_PERIOD_S
+#: The highest rate that rate_hz takes. The sensor's cameras run at 40 Hz, a fast USB camera at a few hundred, the RViz
+#: markers at 10 by default; a camera or marker rate above 1 kHz is a typo, and a node could not keep it anyway (a
+#: frame of the simulated sensor takes milliseconds to render).
+MAX_RATE_HZ = 1000.0
+
+
+class ParameterError(ValueError):
+    """A parameter value that a node refuses at start-up; its message names the node and the parameter."""
 
 
 def positive_float(node: Node, name: str, default: float, *, allow_zero: bool = False) -> float:
     """Declare parameter `name` and return its value: a finite number > 0 (>= 0 with `allow_zero`), as a float.
 
     Integers are taken as floats; anything else (a string, a bool, NaN, an infinity, a number out of range) raises
-    ValueError naming the node and the parameter.
+    ParameterError naming the node and the parameter.
     """
     value = node.declare_parameter(name, default, DYNAMIC).value
     bound = ">= 0" if allow_zero else "> 0"
     if not (is_number(value) and (value >= 0 if allow_zero else value > 0)):
-        raise ValueError(f"{node.get_name()}: parameter {name} must be a finite number {bound}, got {value!r}")
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be a finite number {bound}, got {value!r}")
     return float(value)
 
 
-def whole_number(node: Node, name: str, default: int, low: int = 1) -> int:
-    """Declare parameter `name` and return its value: a whole number >= `low`.
+def whole_number(node: Node, name: str, default: int, low: int = 1, high: int | None = None) -> int:
+    """Declare parameter `name` and return its value: a whole number >= `low` (and <= `high` if given).
 
-    Anything else (a float, even 2.0; a string; a bool) raises ValueError naming the node and the parameter.
+    Anything else (a float, even 2.0; a string; a bool) raises ParameterError naming the node and the parameter.
     """
     value = node.declare_parameter(name, default, DYNAMIC).value
-    if not is_whole_number(value, low):
-        raise ValueError(f"{node.get_name()}: parameter {name} must be a whole number >= {low}, got {value!r}")
+    if not is_whole_number(value, low) or (high is not None and value > high):
+        bound = f">= {low}" if high is None else f"from {low} to {high}"
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be a whole number {bound}, got {value!r}")
     return value
 
 
@@ -54,15 +70,36 @@ def period_s(node: Node, name: str, default: float) -> float:
     """positive_float for a period or timeout that a timer is built from: also at most MAX_PERIOD_S."""
     value = positive_float(node, name, default)
     if value > MAX_PERIOD_S:
-        raise ValueError(f"{node.get_name()}: parameter {name} must be at most {MAX_PERIOD_S:g} s (one day), "
-                         f"got {value!r}")
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be at most {MAX_PERIOD_S:g} s (one day), "
+                             f"got {value!r}")
     return value
 
 
 def rate_hz(node: Node, name: str, default: float) -> float:
-    """positive_float for a rate that a timer's period (its inverse) is built from: also at least MIN_RATE_HZ."""
+    """positive_float for a rate that a timer's period (its inverse) is built from: also from MIN_RATE_HZ to
+    MAX_RATE_HZ."""
     value = positive_float(node, name, default)
     if value < MIN_RATE_HZ:
-        raise ValueError(f"{node.get_name()}: parameter {name} must be at least {MIN_RATE_HZ:.6g} Hz (once a day), "
-                         f"got {value!r}")
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be at least {MIN_RATE_HZ:.6g} Hz (once a "
+                             f"day), got {value!r}")
+    if value > MAX_RATE_HZ:
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be at most {MAX_RATE_HZ:g} Hz, got {value!r}")
+    return value
+
+
+def boolean(node: Node, name: str, default: bool) -> bool:
+    """Declare parameter `name` and return its value: true or false. Anything else (`-p loop:=0`, a string) raises
+    ParameterError naming the node and the parameter."""
+    value = node.declare_parameter(name, default, DYNAMIC).value
+    if not isinstance(value, bool):
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be a bool (true or false), got {value!r}")
+    return value
+
+
+def text(node: Node, name: str, default: str) -> str:
+    """Declare parameter `name` and return its value: a string. Anything else (`-p scene:=3`: quote a number as a
+    string, `-p scene:="'3'"`) raises ParameterError naming the node and the parameter."""
+    value = node.declare_parameter(name, default, DYNAMIC).value
+    if not isinstance(value, str):
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be a string, got {value!r}")
     return value

@@ -13,6 +13,7 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import TEARDOWN_TIMEOUT_S, run_node
+from tactile_conversions.parameters import boolean
 
 
 @pytest.fixture(autouse=True)
@@ -53,6 +54,24 @@ def test_an_error_while_ros_runs_is_printed_ros_is_shut_down_and_the_exit_code_i
         run_node(broken_node)
     assert ended.value.code == 1
     assert "ValueError: bad parameter" in capfd.readouterr().err
+    assert not rclpy.ok()
+
+
+class Switched(Node):
+    """A node with one switch, as the camera nodes' `loop`."""
+
+    def __init__(self):
+        super().__init__("switched")
+        boolean(self, "loop", True)
+
+
+def test_a_refused_parameter_ends_the_node_with_one_line_and_exit_code_2(capfd):
+    """As a command line refuses its input; rclpy's typed declaration of `loop` ended in an
+    InvalidParameterTypeException traceback and exit code 1."""
+    with pytest.raises(SystemExit) as ended:
+        run_node(Switched, ["--ros-args", "-p", "loop:=0"])
+    assert ended.value.code == 2
+    assert capfd.readouterr().err == "switched: parameter loop must be a bool (true or false), got 0\n"
     assert not rclpy.ok()
 
 

@@ -1,5 +1,5 @@
-"""positive_float, period_s, rate_hz and whole_number on real rclpy nodes, with the values a command line gives
-(no DDS traffic)."""
+"""positive_float, period_s, rate_hz, whole_number, boolean and text on real rclpy nodes, with the values a command
+line gives (no DDS traffic)."""
 
 import math
 
@@ -8,7 +8,18 @@ import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from tactile_conversions.parameters import MAX_PERIOD_S, MIN_RATE_HZ, period_s, positive_float, rate_hz, whole_number
+from tactile_conversions.parameters import (
+    MAX_PERIOD_S,
+    MAX_RATE_HZ,
+    MIN_RATE_HZ,
+    ParameterError,
+    boolean,
+    period_s,
+    positive_float,
+    rate_hz,
+    text,
+    whole_number,
+)
 
 
 @pytest.fixture
@@ -49,7 +60,7 @@ def test_numbers_are_taken_as_floats(node_with, value, allow_zero, expected):
     (True, False, "parameter period_s must be a finite number > 0, got True"),
 ])
 def test_anything_else_is_refused_naming_the_parameter(node_with, value, allow_zero, message):
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(ParameterError) as refused:
         positive_float(node_with(value), "period_s", 0.5, allow_zero=allow_zero)
     assert message in str(refused.value)
 
@@ -61,6 +72,8 @@ def test_a_period_of_up_to_a_day_and_a_rate_of_at_least_once_a_day_make_a_timer(
     node = node_with(MIN_RATE_HZ)
     assert node.create_timer(1.0 / rate_hz(node, "period_s", 40.0), lambda: None).timer_period_ns == 86_400 * 10**9
     assert rate_hz(node_with(30), "period_s", 40.0) == 30.0
+    node = node_with(MAX_RATE_HZ)
+    assert node.create_timer(1.0 / rate_hz(node, "period_s", 40.0), lambda: None).timer_period_ns == 1_000_000
 
 
 @pytest.mark.parametrize("helper, value, message", [
@@ -69,10 +82,14 @@ def test_a_period_of_up_to_a_day_and_a_rate_of_at_least_once_a_day_make_a_timer(
     (period_s, math.nan, "parameter period_s must be a finite number > 0, got nan"),
     (rate_hz, 1e-12, "parameters_test: parameter period_s must be at least 1.15741e-05 Hz (once a day), got 1e-12"),
     (rate_hz, 0, "parameter period_s must be a finite number > 0, got 0"),
+    # a timer of period 0 (rcl rounds 1e-12 s to whole nanoseconds), which fires on every spin
+    (rate_hz, 1e12, "parameters_test: parameter period_s must be at most 1000 Hz, got 1000000000000.0"),
+    (rate_hz, 1000.5, "parameter period_s must be at most 1000 Hz, got 1000.5"),
 ])
 def test_a_period_a_timer_cannot_take_is_refused_naming_the_parameter(node_with, helper, value, message):
-    """rclpy's create_timer fails on these with a TypeError naming no parameter (a period past int64 nanoseconds)."""
-    with pytest.raises(ValueError) as refused:
+    """rclpy's create_timer fails on a period past int64 nanoseconds with a TypeError naming no parameter, and makes
+    a timer of period 0 from one below a nanosecond."""
+    with pytest.raises(ParameterError) as refused:
         helper(node_with(value), "period_s", 0.5)
     assert message in str(refused.value)
 
@@ -90,6 +107,31 @@ def test_whole_numbers_are_taken(node_with, value, expected):
     (True, 1, "must be a whole number >= 1, got True"),
 ])
 def test_anything_but_a_whole_number_is_refused_naming_the_parameter(node_with, value, low, message):
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(ParameterError) as refused:
         whole_number(node_with(value), "period_s", 4, low)
+    assert message in str(refused.value)
+
+
+@pytest.mark.parametrize("helper, default, value, expected", [
+    (boolean, True, None, True),
+    (boolean, True, False, False),
+    (text, "demo", None, "demo"),
+    (text, "demo", "3", "3"),  # `-p period_s:="'3'"`
+    (text, "demo", "", ""),
+])
+def test_switches_and_names_are_taken(node_with, helper, default, value, expected):
+    assert helper(node_with(value), "period_s", default) == expected
+
+
+@pytest.mark.parametrize("helper, default, value, message", [
+    # rclpy's typed declaration refused these with an InvalidParameterTypeException traceback naming no node
+    (boolean, True, 0, "parameters_test: parameter period_s must be a bool (true or false), got 0"),
+    (boolean, True, "false", "parameter period_s must be a bool (true or false), got 'false'"),
+    (text, "demo", 3, "parameters_test: parameter period_s must be a string, got 3"),
+    (text, "demo", True, "parameter period_s must be a string, got True"),
+])
+def test_a_switch_or_a_name_of_another_type_is_refused_naming_the_parameter(node_with, helper, default, value,
+                                                                            message):
+    with pytest.raises(ParameterError) as refused:
+        helper(node_with(value), "period_s", default)
     assert message in str(refused.value)

@@ -29,7 +29,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import period_s, positive_float, whole_number
+from tactile_conversions.parameters import period_s, positive_float, text, whole_number
 from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_description import load_sensor
@@ -46,7 +46,7 @@ class BundleNode(Node):
         self.dropped = SyncCounters()  # by every synchroniser of the node; first: destroy_node reports it
         self.reported = self.dropped.snapshot()
         self.last_report_s = -float("inf")
-        sensor_config = self.declare_parameter("sensor_config", "").value
+        sensor_config = text(self, "sensor_config", "")
         self.sensor = load_sensor(sensor_config or None)
         defaults = camera_sync_settings(self.sensor.frame_rate_hz)
         self.max_spread_s = positive_float(self, "max_spread_s", defaults["max_spread_s"])
@@ -69,8 +69,12 @@ class BundleNode(Node):
                                f"(max spread {self.max_spread_s * 1e3:.1f} ms)")
 
     def destroy_node(self) -> None:
-        self.log_drops()  # the last ones, however recent the previous report
+        """Destroy the node, then log the last drops, however recent the previous report. A Ctrl-C or SIGTERM has
+        shut the context down by now, so a line logged before failed to reach /rosout ("Failed to publish log message
+        to rosout: publisher's context is invalid"); with the node, its /rosout publisher is gone, and the line goes
+        to the console and the log file only."""
         super().destroy_node()
+        self.log_drops()
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

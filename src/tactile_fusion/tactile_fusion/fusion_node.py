@@ -40,12 +40,12 @@ from visualization_msgs.msg import MarkerArray
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import rate_hz, whole_number
+from tactile_conversions.parameters import ParameterError, boolean, rate_hz, text, whole_number
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components, load_sensor
 from tactile_fusion.artifacts import threshold_text
-from tactile_fusion.inference import InputError, load_predictor
+from tactile_fusion.inference import DEFAULT_THREADS, MAX_THREADS, InputError, check_backend, load_predictor
 from tactile_fusion.live_estimation import (
     REFERENCE_BUNDLES,
     BundleSequence,
@@ -62,19 +62,23 @@ MARKERS_RATE_HZ = 10.0
 class FusionNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_fusion")
-        sensor_config = self.declare_parameter("sensor_config", "").value
-        model_dir = self.declare_parameter("model_dir", "").value
-        backend = self.declare_parameter("backend", "onnxruntime").value
-        precision = self.declare_parameter("precision", "fp32").value
-        threads = whole_number(self, "threads", 1)
+        sensor_config = text(self, "sensor_config", "")
+        model_dir = text(self, "model_dir", "")
+        backend = text(self, "backend", "onnxruntime")
+        precision = text(self, "precision", "fp32")
+        threads = whole_number(self, "threads", DEFAULT_THREADS, high=MAX_THREADS)
         reference_bundles = whole_number(self, "reference_bundles", REFERENCE_BUNDLES)
-        self.publish_markers = bool(self.declare_parameter("publish_markers", True).value)
+        self.publish_markers = boolean(self, "publish_markers", True)
         try:
             markers_rate_hz = rate_hz(self, "markers_rate_hz", MARKERS_RATE_HZ)
-        except ValueError as exc:
-            raise ValueError(f"{exc} (to publish no markers, set publish_markers false)") from exc
+        except ParameterError as exc:
+            raise ParameterError(f"{exc} (to publish no markers, set publish_markers false)") from exc
         self.markers_period_s = 1.0 / markers_rate_hz
         self.last_markers_s = -float("inf")
+        try:
+            check_backend(backend, precision)
+        except ValueError as exc:
+            raise ParameterError(f"{self.get_name()}: parameters backend and precision: {exc}") from exc
         self.sensor = load_sensor(sensor_config or None)
         self.predictor = load_predictor(model_dir or None, backend, precision, threads)
         self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
