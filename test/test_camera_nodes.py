@@ -104,6 +104,10 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     # ended the node with load_predictor's ValueError traceback
     (FusionNode, {"precision": "int4"}, "tactile_fusion: parameters backend and precision: the onnxruntime backend "
                                         "runs fp32, int8, fp16, not 'int4'"),
+    # a file named by a parameter that cannot be used ended the node with a traceback
+    (BundleNode, {"sensor_config": "/no/such/sensor.yaml"}, "tactile_bundle: parameter sensor_config: "),
+    (SimCameraNode, {"scene": "no_such_scene"}, "tactile_sim_cameras: parameter scene: no scene file 'no_such_scene'"),
+    (FusionNode, {"model_dir": "/no/such/model"}, "tactile_fusion: parameter model_dir: no model in /no/such/model"),
     (FusionNode, {"backend": "tensorrt"}, "parameters backend and precision: backend must be one of ['onnxruntime', "
                                           "'torch'], got 'tensorrt'"),
     (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number >= 1, got 2.5"),

@@ -5,6 +5,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import onnx
 import pytest
 import torch
 from visualization_msgs.msg import Marker, MarkerArray
@@ -14,7 +15,7 @@ from tactile_bringup.processes import spin_until, start_graph, start_node, stop_
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_description import default_sensor_path, load_sensor
-from tactile_fusion.artifacts import MODEL_JSON, default_model_dir, save_model
+from tactile_fusion.artifacts import MODEL_JSON, ONNX_FILES, default_model_dir, save_model
 from tactile_fusion.model import ModelConfig
 from tactile_fusion.pipeline import export_all
 from tactile_fusion.training import build_model
@@ -91,7 +92,7 @@ def test_demo_names_the_node_that_refused_its_model_and_why(ros_domain, run_grap
     demo = run_graph_tool(["tactile-demo", "--model", str(tmp_path / "no_model"), "--duration", "30", "--log-dir",
                            str(tmp_path)], 60)
     assert demo.returncode == 2, demo.stderr
-    assert "node tactile_fusion exited with status 1 while the graph started" in demo.stderr
+    assert "node tactile_fusion exited with status 2 while the graph started" in demo.stderr
     assert "no model in" in demo.stderr and "model.json is missing" in demo.stderr
     assert not (tmp_path / "tactile_sim_cameras.log").exists()  # the cameras were never started
 
@@ -165,8 +166,10 @@ def test_the_fusion_node_reports_bundles_lost_on_the_way(ros_probe, tmp_path):
 
 def test_the_fusion_node_publishes_no_estimate_that_contradicts_its_model_and_keeps_running(ros_probe, tmp_path):
     """A model directory whose model.json says "fz only" while its graph outputs all three components (edited by
-    hand, or files of two models mixed): every estimate is refused with an error in the log, none is published with
-    components it claims not to estimate, and the node keeps running until it is stopped."""
+    hand, or files of two models mixed). The graph names its components, so the node refuses the model at start-up in
+    one line (exit status 2); a graph exported before graphs named them is loaded, every estimate is refused with an
+    error in the log, none is published with components it claims not to estimate, and the node keeps running until
+    it is stopped."""
     sensor = load_sensor()
     config = ModelConfig(image_size=128, conv_channels=(4, 4, 4), hidden_features=16, camera_features=8)
     model = build_model(config, sensor.camera_ids, sensor.grid.rows, sensor.grid.cols,
@@ -176,6 +179,15 @@ def test_the_fusion_node_publishes_no_estimate_that_contradicts_its_model_and_ke
     description = json.loads((model_dir / MODEL_JSON).read_text())
     assert description["components"] == ["fx", "fy", "fz"]
     (model_dir / MODEL_JSON).write_text(json.dumps({**description, "components": ["fz"]}))
+    run = subprocess.run(["fusion_node", "--ros-args", "-p", f"model_dir:={model_dir}"], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and len(run.stderr.splitlines()) == 1, run.stderr
+    assert run.stderr.startswith(f"tactile_fusion: parameter model_dir: {model_dir / ONNX_FILES['fp32']} was "
+                                 "exported from another model than its model.json describes (components "
+                                 '["fx", "fy", "fz"] in the graph, ["fz"] in model.json)'), run.stderr
+    graph = onnx.load(str(model_dir / ONNX_FILES["fp32"]))
+    del graph.metadata_props[:]  # as exported before graphs named their fields
+    onnx.save(graph, str(model_dir / ONNX_FILES["fp32"]))
     code, estimates, log = fusion_node_on_bundles(ros_probe, tmp_path, (0, 1, 2, 3), {"model_dir": str(model_dir)})
     assert code == 0 and estimates == [], log
     assert "no estimate published: components ['fx', 'fy'] are not estimated but hold forces" in log

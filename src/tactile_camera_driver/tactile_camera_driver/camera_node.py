@@ -29,9 +29,16 @@ from sensor_msgs.msg import Image
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import DYNAMIC, ParameterError, boolean, positive_float, rate_hz, text
+from tactile_conversions.parameters import (
+    DYNAMIC,
+    ParameterError,
+    boolean,
+    positive_float,
+    rate_hz,
+    sensor_description,
+    text,
+)
 from tactile_conversions.topics import camera_topic
-from tactile_description import load_sensor
 from tactile_description.imaging import FrameError, crop_and_downsample
 from tactile_description.value_checks import is_whole_number
 
@@ -55,12 +62,11 @@ class CameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_camera")
         self.capture: cv2.VideoCapture | None = None  # first: rclpy destroys the node even if __init__ fails
-        sensor_config = text(self, "sensor_config", "")
         self.camera_id = text(self, "camera_id", "cam0")
         self.source = self.declare_source()
         self.loop = boolean(self, "loop", True)
         self.reopen_period_s = positive_float(self, "reopen_period_s", 1.0)
-        sensor = load_sensor(sensor_config or None)
+        sensor = sensor_description(self)
         if self.camera_id not in sensor.camera_ids:
             raise ParameterError(f"{self.get_name()}: parameter camera_id must name a camera of the sensor description "
                                  f"({list(sensor.camera_ids)}), got {self.camera_id!r}")

@@ -20,12 +20,12 @@ from sensor_msgs.msg import Image
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import ParameterError, boolean, positive_float, rate_hz, text
+from tactile_conversions.parameters import ParameterError, boolean, positive_float, rate_hz, sensor_description, text
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
-from tactile_description import FORCE_COMPONENTS, load_sensor
+from tactile_description import FORCE_COMPONENTS
 from tactile_msgs.msg import ForceDistribution
-from tactile_sim import Simulator, load_scene
+from tactile_sim import SceneError, Simulator, load_scene
 
 #: Default `stamp_jitter_s` (s), or one frame period where that is shorter.
 STAMP_JITTER_S = 0.002
@@ -34,14 +34,16 @@ STAMP_JITTER_S = 0.002
 class SimCameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_sim_cameras")
-        sensor_config = text(self, "sensor_config", "")
         self.scene_name = text(self, "scene", "demo")
         self.loop = boolean(self, "loop", True)
-        self.sensor = load_sensor(sensor_config or None)
+        self.sensor = sensor_description(self)
         frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
         self.stamp_jitter_s = self.declare_stamp_jitter(frame_rate_hz)
         self.simulator = Simulator(self.sensor)
-        self.scene = load_scene(self.scene_name, self.sensor)
+        try:
+            self.scene = load_scene(self.scene_name, self.sensor)
+        except SceneError as exc:
+            raise ParameterError(f"{self.get_name()}: parameter scene: {exc}") from exc
         self.frames = self.simulator.stream(self.scene)
         self.rng = np.random.default_rng(0)
         self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)

@@ -23,6 +23,8 @@ from __future__ import annotations
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
+from tactile_description import SensorDescription, load_sensor
+from tactile_description.sensor import SensorConfigError
 from tactile_description.value_checks import is_number, is_whole_number
 
 #: The descriptor of a parameter whose type the node checks and converts itself.
@@ -103,3 +105,14 @@ def text(node: Node, name: str, default: str) -> str:
     if not isinstance(value, str):
         raise ParameterError(f"{node.get_name()}: parameter {name} must be a string, got {value!r}")
     return value
+
+
+def sensor_description(node: Node) -> SensorDescription:
+    """Declare parameter `sensor_config` and return the sensor description it names (empty: the default, see
+    tactile_description.load_sensor). A description that cannot be read or is not valid raises ParameterError naming
+    the node, the parameter and what is wrong with the file."""
+    path = text(node, "sensor_config", "")
+    try:
+        return load_sensor(path or None)
+    except SensorConfigError as exc:
+        raise ParameterError(f"{node.get_name()}: parameter sensor_config: {exc}") from exc

@@ -29,10 +29,9 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import period_s, positive_float, text, whole_number
+from tactile_conversions.parameters import period_s, positive_float, sensor_description, whole_number
 from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
-from tactile_description import load_sensor
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
 from tactile_msgs.msg import ImageBundle
 
@@ -46,8 +45,7 @@ class BundleNode(Node):
         self.dropped = SyncCounters()  # by every synchroniser of the node; first: destroy_node reports it
         self.reported = self.dropped.snapshot()
         self.last_report_s = -float("inf")
-        sensor_config = text(self, "sensor_config", "")
-        self.sensor = load_sensor(sensor_config or None)
+        self.sensor = sensor_description(self)
         defaults = camera_sync_settings(self.sensor.frame_rate_hz)
         self.max_spread_s = positive_float(self, "max_spread_s", defaults["max_spread_s"])
         self.queue_size = whole_number(self, "queue_size", defaults["queue_size"])

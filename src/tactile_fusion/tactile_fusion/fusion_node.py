@@ -40,11 +40,11 @@ from visualization_msgs.msg import MarkerArray
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import ParameterError, boolean, rate_hz, text, whole_number
+from tactile_conversions.parameters import ParameterError, boolean, rate_hz, sensor_description, text, whole_number
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
-from tactile_description import left_out_components, load_sensor
-from tactile_fusion.artifacts import threshold_text
+from tactile_description import left_out_components
+from tactile_fusion.artifacts import ModelFileError, threshold_text
 from tactile_fusion.inference import DEFAULT_THREADS, MAX_THREADS, InputError, check_backend, load_predictor
 from tactile_fusion.live_estimation import (
     REFERENCE_BUNDLES,
@@ -62,7 +62,6 @@ MARKERS_RATE_HZ = 10.0
 class FusionNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_fusion")
-        sensor_config = text(self, "sensor_config", "")
         model_dir = text(self, "model_dir", "")
         backend = text(self, "backend", "onnxruntime")
         precision = text(self, "precision", "fp32")
@@ -79,9 +78,12 @@ class FusionNode(Node):
             check_backend(backend, precision)
         except ValueError as exc:
             raise ParameterError(f"{self.get_name()}: parameters backend and precision: {exc}") from exc
-        self.sensor = load_sensor(sensor_config or None)
-        self.predictor = load_predictor(model_dir or None, backend, precision, threads)
-        self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
+        self.sensor = sensor_description(self)
+        try:
+            self.predictor = load_predictor(model_dir or None, backend, precision, threads)
+            self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
+        except ModelFileError as exc:  # missing, damaged, of two models mixed, or of another sensor
+            raise ParameterError(f"{self.get_name()}: parameter model_dir: {exc}") from exc
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.bundles_with_problems = 0
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
