@@ -181,18 +181,30 @@ def lz4_chunk_bag(sim_bag, tmp_path):
 @pytest.fixture
 def damaged_lz4_chunk_bag(lz4_chunk_bag):
     """lz4_chunk_bag with the magic number of its second chunk's lz4 frame zeroed."""
-    mcap = next(lz4_chunk_bag.glob("*.mcap"))
+    damage_second_chunk(next(lz4_chunk_bag.glob("*.mcap")), "lz4", b"\x04\x22\x4d\x18")
+    return lz4_chunk_bag
+
+
+@pytest.fixture(scope="session")
+def damage_chunk():
+    """damage_second_chunk itself (conftest is not importable here)."""
+    return damage_second_chunk
+
+
+def damage_second_chunk(mcap: Path, compression: str, magic: bytes) -> None:
+    """Zero the magic number that opens the compressed data of the second chunk of the MCAP file `mcap`, after
+    checking that the chunk is compressed with `compression` and that its data opens with `magic`."""
     reader = McapReader(mcap)
     reader.open()
     chunk = reader.chunks[1]
     reader.close()
-    assert chunk.compression == "lz4"
+    assert chunk.compression == compression
     data = bytearray(mcap.read_bytes())
-    frame_at = chunk.chunk_start_offset + 9 + 40 + len("lz4")  # opcode, length, chunk header, compression, size
-    assert data[frame_at:frame_at + 4] == b"\x04\x22\x4d\x18"
-    data[frame_at:frame_at + 4] = bytes(4)
+    # The chunk record: opcode and length (9 bytes), its header (40), the compression's name, then the data.
+    frame_at = chunk.chunk_start_offset + 9 + 40 + len(compression)
+    assert data[frame_at:frame_at + len(magic)] == magic
+    data[frame_at:frame_at + len(magic)] = bytes(len(magic))
     mcap.write_bytes(bytes(data))
-    return lz4_chunk_bag
 
 
 @pytest.fixture(scope="session")

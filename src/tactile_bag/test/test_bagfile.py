@@ -138,20 +138,11 @@ def test_a_damaged_file_compressed_bag_is_refused(damaged_zstd_file_bag):
         BagReader(bag)
 
 
-def test_a_zstd_chunk_that_does_not_decompress_is_refused(tmp_path):
+def test_a_zstd_chunk_that_does_not_decompress_is_refused(tmp_path, damage_chunk):
     """A zstd-compressed MCAP chunk (ros2 bag's default storage preset writes them) whose zstd frame is damaged: the
     error comes from decompressing it, when its messages are read."""
     mcap = rosbags_bag(tmp_path / "bag", messages=100, compression=True)
-    reader = McapReader(mcap)
-    reader.open()
-    chunk = reader.chunks[1]
-    reader.close()
-    assert chunk.compression == "zstd"
-    data = bytearray(mcap.read_bytes())
-    frame_at = chunk.chunk_start_offset + 9 + 40 + len("zstd")
-    assert data[frame_at:frame_at + 4] == b"\x28\xb5\x2f\xfd"
-    data[frame_at:frame_at + 4] = bytes(4)  # the zstd frame's magic number
-    mcap.write_bytes(bytes(data))
+    damage_chunk(mcap, "zstd", b"\x28\xb5\x2f\xfd")  # the zstd frame's magic number
     with BagReader(tmp_path / "bag") as bag, \
             pytest.raises(BagError, match=rf"^bag {tmp_path / 'bag'} is damaged: reading its messages failed \(Unable "
                                           r"to decompress Zstandard data: Unknown frame descriptor\)$"):
