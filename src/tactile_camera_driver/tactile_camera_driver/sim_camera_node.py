@@ -67,7 +67,7 @@ class SimCameraNode(Node):
         jitter_s = positive_float(self, "stamp_jitter_s", min(STAMP_JITTER_S, frame_period_s), allow_zero=True)
         if jitter_s > frame_period_s:
             raise ParameterError(f"{self.get_name()}: parameter stamp_jitter_s must be at most one frame period, "
-                                 f"{frame_period_s:g} s at rate_hz {frame_rate_hz:g}, got {jitter_s!r}")
+                                 f"{frame_period_s!r} s at rate_hz {frame_rate_hz:g}, got {jitter_s!r}")
         return jitter_s
 
     def publish_frame(self) -> None:

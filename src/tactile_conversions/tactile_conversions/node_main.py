@@ -13,7 +13,7 @@ from rclpy.node import Node
 
 from tactile_conversions.parameters import ParameterError
 from tactile_conversions.stop_signals import stopped_by_signal
-from tactile_description.command_line import INPUT_ERROR_EXIT
+from tactile_description.command_line import INPUT_ERROR_EXIT, one_line
 
 #: How long the middleware may take to destroy the node and the context once the node has stopped. Fast DDS 3.2.3
 #: (the newest wheel) can deadlock while it deletes the participant if a discovery message about a peer that is
@@ -51,7 +51,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
         node = make_node()
         rclpy.spin(node)
     except ParameterError as exc:
-        print(exc, file=sys.stderr)
+        print(one_line(exc), file=sys.stderr)
         exit_code = INPUT_ERROR_EXIT
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):

@@ -13,7 +13,7 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import TEARDOWN_TIMEOUT_S, run_node
-from tactile_conversions.parameters import boolean
+from tactile_conversions.parameters import boolean, sensor_description
 
 
 @pytest.fixture(autouse=True)
@@ -73,6 +73,23 @@ def test_a_refused_parameter_ends_the_node_with_one_line_and_exit_code_2(capfd):
     assert ended.value.code == 2
     assert capfd.readouterr().err == "switched: parameter loop must be a bool (true or false), got 0\n"
     assert not rclpy.ok()
+
+
+class Described(Node):
+    def __init__(self):
+        super().__init__("described")
+        sensor_description(self)
+
+
+def test_a_refused_sensor_description_is_one_line_though_the_yaml_parser_says_it_in_several(capfd, tmp_path):
+    broken = tmp_path / "sensor.yaml"
+    broken.write_text("name: [unclosed\n")
+    with pytest.raises(SystemExit) as ended:
+        run_node(Described, ["--ros-args", "-p", f"sensor_config:={broken}"])
+    assert ended.value.code == 2
+    err = capfd.readouterr().err
+    assert err.startswith(f"described: parameter sensor_config: sensor description {broken}"), err
+    assert err.count("\n") == 1, err
 
 
 #: A node process whose teardown hangs, as the middleware's does when Fast DDS deadlocks deleting the participant.

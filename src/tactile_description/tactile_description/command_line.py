@@ -22,8 +22,14 @@ INPUT_ERROR_EXIT = 2
 def error_exit(program: str, error: BaseException | str) -> int:
     """Report why a command refuses its input as one line on stderr (a YAML parser's message spans several: they are
     joined); INPUT_ERROR_EXIT, for `main` to return."""
-    print(f"{program}: error: {' '.join(str(error).split())}", file=sys.stderr)
+    print(f"{program}: error: {one_line(error)}", file=sys.stderr)
     return INPUT_ERROR_EXIT
+
+
+def one_line(error: BaseException | str) -> str:
+    """An error's message on one line: its lines (a YAML parser's message spans several) and runs of spaces joined by
+    single spaces."""
+    return " ".join(str(error).split())
 
 
 def whole_number_argument(minimum: int, unit: str, why: str = "", maximum: int | None = None):

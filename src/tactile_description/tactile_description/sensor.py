@@ -29,6 +29,12 @@ SENSOR_ENV = "TACTILE_SENSOR_CONFIG"
 MAX_IMAGE_SIDE_PX = 4096
 
 
+#: The highest camera frame rate a sensor description may give: a fast USB camera runs at a few hundred Hz, and the
+#: camera nodes take at most 1 kHz (tactile_conversions.parameters.MAX_RATE_HZ), where a higher rate read from the
+#: description was refused as if the user had set their `rate_hz`.
+MAX_FRAME_RATE_HZ = 1000.0
+
+
 class SensorConfigError(ValueError):
     """A sensor description that is missing a key or holds an impossible value."""
 
@@ -278,7 +284,7 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     ids = [cam.camera_id for cam in cameras]
     if len(set(ids)) != len(ids):
         raise SensorConfigError(f"{source}: camera ids must be unique, got {ids}")
-    frame_rate_hz = cams.number("frame_rate_hz", positive=True)
+    frame_rate_hz = cams.number("frame_rate_hz", positive=True, high=MAX_FRAME_RATE_HZ)
     cams.finish()
 
     description = SensorDescription(name=str(top.raw("name", required=True)),

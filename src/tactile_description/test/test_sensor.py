@@ -76,6 +76,9 @@ def _broken(tmp_path, edit):
 @pytest.mark.parametrize("edit, message", [
     (lambda r: r["surface"].pop("bin_rows"), "surface: missing key 'bin_rows'"),
     (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be a number > 0"),
+    # the camera nodes refused it as their rate_hz parameter, which the user had not set
+    (lambda r: r["cameras"].update(frame_rate_hz=2000), "cameras.frame_rate_hz must be a number > 0 and <= 1000, "
+                                                        "got 2000"),
     (lambda r: r["surface"].update(bin_cols=2.5), "surface.bin_cols must be an integer"),
     (lambda r: r["surface"].update(bin_colls=25), r"surface: unknown key\(s\) \['bin_colls'\]"),
     (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), r"gel_layers\[1\].poisson_ratio must be a number in"),

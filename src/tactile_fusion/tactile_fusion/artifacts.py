@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from tactile_description import FORCE_COMPONENTS, SensorDescription
+from tactile_description.command_line import one_line
 from tactile_description.json_file import read_json
 from tactile_description.value_checks import is_whole_number
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
@@ -105,6 +106,10 @@ def mismatched_fields(named: Mapping, fields: dict, where: str) -> list[str]:
     """The fields (model_fields) to which `named`, what a model file names of model.json, gives another value, each
     as "<field> <value named> in <where>, <value> in model.json". What it does not name is not checked (files written
     before they named it)."""
+    named = dict(named)
+    if isinstance(named.get("model_config"), dict):  # with the defaults of fields that ModelConfig gains later
+        with contextlib.suppress(TypeError, KeyError, ValueError):
+            named["model_config"] = ModelConfig.from_dict(named["model_config"]).to_dict()
     return [f"{key} {json.dumps(named[key])} in {where}, {json.dumps(value)} in {MODEL_JSON}"
             for key, value in fields.items() if key in named and named[key] != value]
 
@@ -186,6 +191,8 @@ def described_model(model_dir: str | Path, description: dict) -> ForceFusionNet:
         return ForceFusionNet(ModelConfig.from_dict(description["model_config"]), description["camera_ids"],
                               description["rows"], description["cols"], torch.tensor(description["force_scale_n"]),
                               model_components(description), model_threshold(description))
+    except ModelFileError:  # model_components and model_threshold name the file already
+        raise
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{Path(model_dir) / MODEL_JSON}: {exc}; {REPLACE_MODEL}") from exc
 
@@ -206,16 +213,22 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
         named = state.pop(WEIGHTS_FIELDS_KEY, {})  # none in a model.pt saved before it named them
         if not isinstance(named, Mapping):
             raise RuntimeError(f"its {WEIGHTS_FIELDS_KEY} is a {type(named).__name__}, not a mapping")
-        model.load_state_dict(state)
-    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError) as exc:  # OSError: a directory, unreadable
-        reason = " ".join(str(exc).split()) or type(exc).__name__  # an empty file: a bare EOFError
+        if "force_scale_n" in state:  # a buffer of every model.pt, older ones included
+            named = {"force_scale_n": [float(v) for v in state["force_scale_n"]], **named}
+        # Before the weights are loaded: an edit of a field that shapes them (components, grid, model config) is
+        # reported as what it is, not as torch's size mismatch.
+        mismatches = mismatched_fields(named, described, "the weights")
+        if not mismatches:
+            model.load_state_dict(state)
+    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, TypeError) as exc:  # OSError: a directory
+        reason = one_line(exc) or type(exc).__name__  # an empty file: a bare EOFError
         raise ModelFileError(f"{state_path} cannot be read or does not fit {MODEL_JSON} ({reason}): the file is "
                              f"damaged or of another model; {REPLACE_MODEL}") from exc
-    mismatches = mismatched_fields(named, described, "the weights")
     if mismatches:
         raise ModelFileError(f"{state_path} holds the weights of another model than its {MODEL_JSON} describes "
                              f"({'; '.join(mismatches)}): files of two models are mixed, or {MODEL_JSON} was edited "
-                             f"after training; put back the {MODEL_JSON} that came with the weights")
+                             f"after training; put back the {MODEL_JSON} that came with the weights, or retrain "
+                             "(tactile-fusion train)")
     return model.eval()
 
 

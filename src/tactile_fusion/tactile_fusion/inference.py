@@ -172,9 +172,9 @@ class OnnxRuntimePredictor(ForcePredictor):
         if mismatches:
             raise ModelFileError(f"{onnx_path} was exported from another model than its model.json describes "
                                  f"({'; '.join(mismatches)}): files of two models are mixed, or model.json was "
-                                 "edited after export; put back the model.json that came with the graphs, or "
-                                 f"re-export them (tactile-fusion export --model {Path(onnx_path).parent}), which "
-                                 "takes model.json's Fz threshold and refuses its other edits")
+                                 "edited after export; put back the model.json that came with the graphs, or, if "
+                                 "only its Fz threshold was meant to change, re-export them (tactile-fusion export "
+                                 f"--model {Path(onnx_path).parent})")
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]

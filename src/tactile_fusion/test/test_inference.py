@@ -222,7 +222,7 @@ DAMAGED = [
     (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(force_scale_n=[1.0, -1.0, 1.0])),
      "model.json: ForceFusionNet: force_scale_n must be 3 finite positive numbers"),
     (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(cols=5)),
-     "model.pt cannot be read or does not fit model.json .*size mismatch"),
+     r"model.pt holds the weights of another model than its model.json describes \(cols \d+ in the weights, 5 in "),
     (STATE_DICT, "torch", lambda p: p.write_bytes(p.read_bytes()[:300]), "model.pt cannot be read"),
     (STATE_DICT, "torch", lambda p: p.write_bytes(b"not a state dict"), "model.pt cannot be read"),
     (ONNX_FILES["fp32"], "onnxruntime", lambda p: p.write_bytes(p.read_bytes()[:300]),
@@ -344,7 +344,10 @@ def test_weights_and_a_model_json_that_differ_in_what_the_weights_were_trained_w
     cameras = description["camera_ids"]
     edits = {"camera_ids": cameras[1:] + cameras[:1],  # before: taken, the estimates silently wrong
              "force_scale_n": [2 * v for v in description["force_scale_n"]],  # before: the weights' scale taken
-             "model_config": {**description["model_config"], "dropout": 0.2}}
+             "model_config": {**description["model_config"], "dropout": 0.2},
+             # edits that change the weights' shapes: reported as such, not as torch's size mismatch
+             "components": ["fz"] if description["components"] != ["fz"] else ["fx", "fy", "fz"],
+             "rows": description["rows"] + 1}
     for key, value in edits.items():
         (tmp_path / MODEL_JSON).write_text(json.dumps({**description, key: value}))
         for precision in BACKENDS["torch"]:
@@ -362,6 +365,12 @@ def test_weights_and_a_model_json_that_differ_in_what_the_weights_were_trained_w
     torch.save(state, tmp_path / STATE_DICT)
     (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "camera_ids": cameras[::-1]}))
     assert load_predictor(tmp_path, "torch").camera_ids == tuple(cameras[::-1])
+    # ... but for its force scale, a buffer of every model.pt (before: the weights' scale silently taken).
+    scale = [2 * v for v in description["force_scale_n"]]
+    (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "force_scale_n": scale}))
+    with pytest.raises(ModelFileError, match=rf"\(force_scale_n .* in the weights, {re.escape(json.dumps(scale))} in "
+                                             r"model.json\)"):
+        load_model(tmp_path)
 
 
 def test_a_model_json_without_an_fz_threshold_has_none_and_a_bad_one_is_refused(model_dir, tmp_path):

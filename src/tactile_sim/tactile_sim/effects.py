@@ -374,7 +374,7 @@ def parse_effect(node, where: str) -> EffectSpec:
         raise SceneError(f"{where}: an effect must be a mapping with a 'type' key (one of {sorted(EFFECTS)}), "
                          f"got {node!r}")
     kind = node["type"]
-    if kind not in EFFECTS:
+    if not isinstance(kind, str) or kind not in EFFECTS:  # a list or a mapping is no key of EFFECTS (TypeError)
         raise SceneError(f"{where}: unknown effect type {kind!r}; known effects are {sorted(EFFECTS)}")
     cls = EFFECTS[kind]
     allowed = [f.name for f in fields(cls)]

@@ -97,6 +97,7 @@ def _scene(**overrides):
 
 @pytest.mark.parametrize("raw, message", [
     (_scene(effects=[{"type": "lens_flare"}]), "unknown effect type 'lens_flare'"),
+    (_scene(effects=[{"type": []}]), r"unknown effect type \[\]"),  # a TypeError before
     (_scene(effects=[{"type": "sensor_noise", "sigmaa": 1}]), "has no key 'sigmaa'"),
     (_scene(effects=[{"type": "sensor_noise", "sigma": -1}]), r"'sigma' must be a number in \(0, 255\]"),
     (_scene(effects=[{"type": "camera_dropout"}]), "needs 'cameras'"),
