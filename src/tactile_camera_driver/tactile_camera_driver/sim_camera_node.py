@@ -20,7 +20,15 @@ from sensor_msgs.msg import Image
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import ParameterError, boolean, positive_float, rate_hz, sensor_description, text
+from tactile_conversions.parameters import (
+    ParameterError,
+    boolean,
+    positive_float,
+    rate_hz,
+    refused_as,
+    sensor_description,
+    text,
+)
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import FORCE_COMPONENTS
@@ -40,10 +48,8 @@ class SimCameraNode(Node):
         frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
         self.stamp_jitter_s = self.declare_stamp_jitter(frame_rate_hz)
         self.simulator = Simulator(self.sensor)
-        try:
+        with refused_as(self, "parameter scene", SceneError):
             self.scene = load_scene(self.scene_name, self.sensor)
-        except SceneError as exc:
-            raise ParameterError(f"{self.get_name()}: parameter scene: {exc}") from exc
         self.frames = self.simulator.stream(self.scene)
         self.rng = np.random.default_rng(0)
         self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)

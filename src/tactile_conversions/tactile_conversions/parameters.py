@@ -20,6 +20,8 @@ it ends the node with exit status 2, as a command line refuses its input.
 
 from __future__ import annotations
 
+import contextlib
+
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
@@ -112,7 +114,15 @@ def sensor_description(node: Node) -> SensorDescription:
     tactile_description.load_sensor). A description that cannot be read or is not valid raises ParameterError naming
     the node, the parameter and what is wrong with the file."""
     path = text(node, "sensor_config", "")
-    try:
+    with refused_as(node, "parameter sensor_config", SensorConfigError):
         return load_sensor(path or None)
-    except SensorConfigError as exc:
-        raise ParameterError(f"{node.get_name()}: parameter sensor_config: {exc}") from exc
+
+
+@contextlib.contextmanager
+def refused_as(node: Node, parameters: str, *errors: type[Exception]):
+    """Turn `errors` raised inside into a ParameterError "<node>: <parameters>: <error>": for what parameters name
+    and the node can only find out by using it (a file that cannot be read, a model of another sensor)."""
+    try:
+        yield
+    except errors as exc:
+        raise ParameterError(f"{node.get_name()}: {parameters}: {exc}") from exc

@@ -40,7 +40,15 @@ from visualization_msgs.msg import MarkerArray
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import ParameterError, boolean, rate_hz, sensor_description, text, whole_number
+from tactile_conversions.parameters import (
+    ParameterError,
+    boolean,
+    rate_hz,
+    refused_as,
+    sensor_description,
+    text,
+    whole_number,
+)
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components
@@ -74,16 +82,13 @@ class FusionNode(Node):
             raise ParameterError(f"{exc} (to publish no markers, set publish_markers false)") from exc
         self.markers_period_s = 1.0 / markers_rate_hz
         self.last_markers_s = -float("inf")
-        try:
+        with refused_as(self, "parameters backend and precision", ValueError):
             check_backend(backend, precision)
-        except ValueError as exc:
-            raise ParameterError(f"{self.get_name()}: parameters backend and precision: {exc}") from exc
         self.sensor = sensor_description(self)
-        try:
+        # A model directory that is missing, damaged, of two models mixed, or of another sensor.
+        with refused_as(self, "parameter model_dir", ModelFileError):
             self.predictor = load_predictor(model_dir or None, backend, precision, threads)
             self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
-        except ModelFileError as exc:  # missing, damaged, of two models mixed, or of another sensor
-            raise ParameterError(f"{self.get_name()}: parameter model_dir: {exc}") from exc
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.bundles_with_problems = 0
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
