@@ -70,7 +70,7 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     lines and the fully trained model's error; right: wall time of full training against recalibration, titled with
     the study's speed-up (`sweep`: the report study.recalibration_study writes)."""
     fractions = np.array([run["fraction"] for run in sweep["recalibration"]])
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 5), constrained_layout=True)
     for key, label, colour in (("rmse_bin_n", "per-bin Fz RMSE", "tab:blue"),
                                ("rmse_total_n", "total Fz RMSE / 10", "tab:orange")):
         scale = 0.1 if key == "rmse_total_n" else 1.0
@@ -87,7 +87,8 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     ax.set_xlabel("training data used for recalibration (%)")
     ax.set_ylabel("RMSE on the test split (mN)")
     ax.set_title(f"adding camera {sweep['added_camera']} to a {sweep['base_cameras']}-camera model")
-    ax.legend(fontsize=6, loc="center right")
+    # Below the axes: inside, the legend hid some of the points wherever it was put.
+    ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncols=2)
     names = ["full training"] + [f"recal. {100 * f:.0f} %" for f in fractions]
     times = [sweep["full_training"]["wall_time_s"]] + [run["wall_time_s"] for run in sweep["recalibration"]]
     bx.bar(range(len(names)), times, color=["tab:red"] + ["tab:green"] * len(fractions))
