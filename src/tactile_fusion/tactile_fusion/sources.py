@@ -105,44 +105,64 @@ class CachedSource:
             raise ValueError(f"CachedSource: cut must be one of {CUTS}, got {cut!r}")
         self.cut = cut
         self.force_scale_n = model.force_scale_n
-        features, targets = [self._front(model, frames, cut)], [np.asarray(frames.bin_forces_n)]
+        extra_parts = []  # (features, targets) of each chunk of extra frames; their count is known only at the end
         for chunk in extra:
             if chunk.camera_ids != frames.camera_ids:
                 raise ValueError(f"CachedSource: extra frames of cameras {list(chunk.camera_ids)}, the frames' are "
                                  f"{list(frames.camera_ids)}")
-            features.append(self._front(model, chunk, cut))
-            targets.append(np.asarray(chunk.bin_forces_n))
-        self.extra_frames = sum(len(t) for t in targets[1:])
-        # (N + M, C, features at the cut) and (N + M, rows, cols, 3); without extra frames the frames' own, not copies
-        self.features = torch.cat(features) if self.extra_frames else features[0]
-        self.targets = torch.from_numpy(np.concatenate(targets) if self.extra_frames else targets[0])
+            extra_parts.append((self._front(model, chunk, cut), np.asarray(chunk.bin_forces_n)))
+        self.extra_frames = sum(len(targets) for _, targets in extra_parts)
+        n = len(frames)
+        copied = n if augmentation is not None and augmentation.active else 0
+        self._allocate(model, frames, n + self.extra_frames + copied)
+        self._front(model, frames, cut, out=self._cache[:n])
+        targets = np.asarray(frames.bin_forces_n)  # (N + M, rows, cols, 3); without extra frames the frames' own
+        if self.extra_frames:
+            targets = np.concatenate([targets, np.empty((self.extra_frames, *targets.shape[1:]), targets.dtype)])
+        self.targets = torch.from_numpy(targets)
+        start = n
+        while extra_parts:  # each chunk's features freed once in place, so they are never held twice
+            features, chunk_targets = extra_parts.pop(0)
+            self._cache[start:start + len(features)] = features
+            self.targets[start:start + len(features)] = torch.from_numpy(chunk_targets)
+            start += len(features)
         self.redraw_copy(model, frames, augmentation, seed)
+
+    def _allocate(self, model: ForceFusionNet, frames: FrameSet, samples: int) -> None:
+        """One float32 tensor for every cached sample: (samples, C, features at the cut). The imperfect copy is
+        redrawn into its place in every head cycle, so the cache is never held beside a new one (it is the largest
+        array of training: 1.8 GB for make model's 110880 samples of 4 x 1024 features)."""
+        width = model.config.flat_features if self.cut == "trunk" else model.config.hidden_features
+        self._cache = torch.empty((samples, len(frames.camera_ids), width), dtype=torch.float32)
 
     def redraw_copy(self, model: ForceFusionNet, frames: FrameSet, augmentation: Augmentation | None,
                     seed: int) -> None:
         """Replace the imperfect copy (if any) by one drawn from `seed`, as the constructor would with this seed; the
         features of the frames and the extra frames, which do not change, are kept rather than computed again."""
-        self.features = self._frame_features()
-        if augmentation is not None and augmentation.active:
-            augmented = self._front(model, frames, self.cut,
-                                    lambda images, start: augmentation.apply_each(images, seed, start))
-            self.features = torch.cat([self.features, augmented])
+        samples = len(self.targets)
+        if augmentation is None or not augmentation.active:
+            self.features = self._cache[:samples]
+            return
+        if len(self._cache) < samples + len(frames):  # built without a copy: the frames' features move to a new cache
+            kept = self._cache[:samples]
+            self._allocate(model, frames, samples + len(frames))
+            self._cache[:samples] = kept
+        self.features = self._cache[:samples + len(frames)]
+        self._front(model, frames, self.cut, lambda images, start: augmentation.apply_each(images, seed, start),
+                    out=self.features[samples:])
 
     def frames_only(self) -> CachedSource:
         """This source without the imperfect copy: the cached features of the frames and the extra frames (shared,
         not copied)."""
         view = copy.copy(self)
-        view.features = self._frame_features()
+        view.features = self._cache[:len(self.targets)]
         return view
 
-    def _frame_features(self) -> torch.Tensor:
-        """The cached features of the frames and the extra frames, without those of the copy (a view)."""
-        return self.features[:len(self.targets)]
-
     @staticmethod
-    def _front(model: ForceFusionNet, frames: FrameSet, cut: str, change=None) -> torch.Tensor:
+    def _front(model: ForceFusionNet, frames: FrameSet, cut: str, change=None,
+               out: torch.Tensor | None = None) -> torch.Tensor:
         """(N, C, features at the cut) of `frames` through ONNX Runtime, each chunk of images first passed through
-        change(images, first frame index) if given."""
+        change(images, first frame index) if given; written into `out` if given (a float32 tensor of that shape)."""
         reference = np.ascontiguousarray(frames.reference)
         front = FrontPart(model, cut).eval()
         example = (torch.from_numpy(np.asarray(frames.images[:1])), torch.from_numpy(reference))
@@ -153,8 +173,12 @@ class CachedSource:
             if change is not None:
                 images = change(images, start)
             images = with_cameras_at_rest(images, reference, frames.camera_ok[start:start + FRONT_BATCH_FRAMES])
-            chunks.append(session.run(None, {"images": np.ascontiguousarray(images), "reference": reference})[0])
-        return torch.from_numpy(np.concatenate(chunks))
+            features = session.run(None, {"images": np.ascontiguousarray(images), "reference": reference})[0]
+            if out is None:
+                chunks.append(features)
+            else:
+                out[start:start + len(features)] = torch.from_numpy(features)
+        return torch.from_numpy(np.concatenate(chunks)) if out is None else out
 
     def __len__(self) -> int:
         return len(self.features)

@@ -135,6 +135,27 @@ def test_least_squares_scores_are_the_validation_rmse_of_the_fitted_model(frames
     assert np.all(predict_torch(model, val)[..., :3 - len(components)] == 0.0)
 
 
+def test_the_fits_features_are_the_models_own_batch_by_batch_with_a_column_of_ones_for_the_bias(frames, tiny_config):
+    """camera_features writes every batch into one tensor (for the memory of the fit); its rows must be the model's
+    features of each frame, whichever batch the frame fell in, and its targets the estimated components."""
+    model = model_for(frames, tiny_config, components=("fz",)).eval()
+    train, _ = splits(frames)
+    source = CachedSource(model, train, "trunk")
+    design, targets, unestimated = least_squares.camera_features(model, source, batch_size=4, ones_column=True)
+    assert len(train) % 4 and design.dtype == targets.dtype == torch.float64
+    with torch.no_grad():
+        expected = source.features_at(model, np.arange(len(train))).reshape(len(train), -1).double()
+    torch.testing.assert_close(design[:, :-1], expected, rtol=1e-6, atol=1e-7)  # the last bits depend on the batch
+    assert torch.all(design[:, -1] == 1.0)
+    forces = torch.from_numpy(train.bin_forces_n) / model.force_scale_n
+    assert torch.equal(targets, forces[..., 2].reshape(len(train), -1).double())
+    assert unestimated == pytest.approx(float(torch.sum(forces[..., :2].double() ** 2)))
+    features, _, _ = least_squares.camera_features(model, source, batch_size=4, dtype=torch.float32)
+    assert features.dtype == torch.float32 and torch.equal(features.double(), design[:, :-1])
+    with pytest.raises(ValueError, match="no frames"):
+        least_squares.camera_features(model, ImageSource(train.subset(np.arange(0)), model.force_scale_n))
+
+
 def test_least_squares_keeps_the_layer_when_no_ridge_helps(frames, tiny_config):
     model = model_for(frames, tiny_config).eval()
     train, val = splits(frames)
@@ -517,12 +538,18 @@ def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames,
                                both.features, rtol=0, atol=0)
     # A redrawn copy is the copy a new source with that seed would hold; the frames' own features stay.
     redrawn = CachedSource(model, train, "trunk", augmentation=augmentation, seed=2)
+    cache = redrawn.features.data_ptr()
     redrawn.redraw_copy(model, train, augmentation, seed=3)
     torch.testing.assert_close(redrawn.features, CachedSource(model, train, "trunk", augmentation=augmentation,
                                                               seed=3).features, rtol=0, atol=0)
     assert not torch.equal(redrawn.features[n:], both.features[n:])
+    assert redrawn.features.data_ptr() == cache  # redrawn in place: the cache is never held twice
     redrawn.redraw_copy(model, train, None, seed=3)
     assert torch.equal(redrawn.features, clean.features)
+    # A source built without a copy gets room for one.
+    grown = CachedSource(model, train, "trunk")
+    grown.redraw_copy(model, train, augmentation, seed=2)
+    assert torch.equal(grown.features, both.features)
     # Frame i's copy is drawn from (seed, i) alone, whatever frames share its forward batch.
     assert n % 5 and n > 5 and sources.FRONT_BATCH_FRAMES != 5
     monkeypatch.setattr(sources, "FRONT_BATCH_FRAMES", 5)
