@@ -56,8 +56,8 @@ def camera_features(model: ForceFusionNet, source, batch_size: int = 256, dtype:
         if features is None:
             features = torch.empty(len(source), batch.shape[1] + int(ones_column), dtype=dtype)
             targets = torch.empty(len(source), estimated_target.shape[1], dtype=dtype)
-        features[idx[0]:idx[-1] + 1, :batch.shape[1]] = batch
-        targets[idx[0]:idx[-1] + 1] = estimated_target
+        features[start:start + len(idx), :batch.shape[1]] = batch
+        targets[start:start + len(idx)] = estimated_target
         unestimated += float(torch.sum(target[..., others].double() ** 2))
     if ones_column:
         features[:, -1] = 1.0

@@ -129,11 +129,10 @@ class CachedSource:
         self.redraw_copy(model, frames, augmentation, seed)
 
     def _allocate(self, model: ForceFusionNet, frames: FrameSet, samples: int) -> None:
-        """One float32 tensor for every cached sample: (samples, C, features at the cut). The imperfect copy is
-        redrawn into its place in every head cycle, so the cache is never held beside a new one (it is the largest
-        array of training: 1.8 GB for make model's 110880 samples of 4 x 1024 features)."""
-        width = model.config.flat_features if self.cut == "trunk" else model.config.hidden_features
-        self._cache = torch.empty((samples, len(frames.camera_ids), width), dtype=torch.float32)
+        """One float32 tensor for every cached sample. The imperfect copy is redrawn into its place in every head
+        cycle, so the cache is never held beside a new one (it is the largest array of training: 1.8 GB for make
+        model's 110880 samples of 4 x 1024 features)."""
+        self._cache = _features_at_cut(model, frames, self.cut, samples)
 
     def redraw_copy(self, model: ForceFusionNet, frames: FrameSet, augmentation: Augmentation | None,
                     seed: int) -> None:
@@ -162,23 +161,22 @@ class CachedSource:
     def _front(model: ForceFusionNet, frames: FrameSet, cut: str, change=None,
                out: torch.Tensor | None = None) -> torch.Tensor:
         """(N, C, features at the cut) of `frames` through ONNX Runtime, each chunk of images first passed through
-        change(images, first frame index) if given; written into `out` if given (a float32 tensor of that shape)."""
+        change(images, first frame index) if given; written into `out` if given (a float32 tensor of that shape),
+        else into a new tensor."""
+        if out is None:
+            out = _features_at_cut(model, frames, cut, len(frames))
         reference = np.ascontiguousarray(frames.reference)
         front = FrontPart(model, cut).eval()
         example = (torch.from_numpy(np.asarray(frames.images[:1])), torch.from_numpy(reference))
         session = onnx_session(onnx_bytes(front, example, "features"), torch.get_num_threads(), spinning=False)
-        chunks = []
         for start in range(0, len(frames), FRONT_BATCH_FRAMES):
             images = np.asarray(frames.images[start:start + FRONT_BATCH_FRAMES])
             if change is not None:
                 images = change(images, start)
             images = with_cameras_at_rest(images, reference, frames.camera_ok[start:start + FRONT_BATCH_FRAMES])
             features = session.run(None, {"images": np.ascontiguousarray(images), "reference": reference})[0]
-            if out is None:
-                chunks.append(features)
-            else:
-                out[start:start + len(features)] = torch.from_numpy(features)
-        return torch.from_numpy(np.concatenate(chunks)) if out is None else out
+            out[start:start + len(features)] = torch.from_numpy(features)
+        return out
 
     def __len__(self) -> int:
         return len(self.features)
@@ -200,6 +198,12 @@ class CachedSource:
 
     def target(self, indices: np.ndarray) -> torch.Tensor:
         return self.forces_n(indices) / self.force_scale_n
+
+
+def _features_at_cut(model: ForceFusionNet, frames: FrameSet, cut: str, samples: int) -> torch.Tensor:
+    """An empty float32 (samples, C, features at the cut) tensor for the front part's output of `frames`' cameras."""
+    width = model.config.flat_features if cut == "trunk" else model.config.hidden_features
+    return torch.empty((samples, len(frames.camera_ids), width), dtype=torch.float32)
 
 
 #: The weakest blur an augmented frame gets (pixels): a Gaussian below this hardly changes an image.
