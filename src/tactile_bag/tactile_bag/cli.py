@@ -22,7 +22,7 @@ from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, 
 from tactile_bag.play import MIN_RATE, play
 from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
-from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_conversions.stop_signals import init_ros, stopped_by_signal
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
 from tactile_description.command_line import (
@@ -37,7 +37,7 @@ from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, cont
 def cmd_record(args) -> int:
     sensor = load_sensor(args.sensor)
     topics = args.topics or default_record_topics(sensor)
-    rclpy.init()
+    init_ros()
     started = time.monotonic()
     try:
         counts = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout, args.wait)
@@ -62,7 +62,7 @@ def cmd_record(args) -> int:
 
 
 def cmd_play(args) -> int:
-    rclpy.init()
+    init_ros()
     started = time.monotonic()
     try:
         counts = play(args.bag, args.rate, args.loop, args.topics, args.wait_subscribers)

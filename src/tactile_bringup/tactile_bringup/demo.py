@@ -35,7 +35,7 @@ from tactile_bringup.processes import (
 )
 from tactile_conversions.forces import components_problem
 from tactile_conversions.ros_time import time_to_seconds
-from tactile_conversions.stop_signals import until_stop_signal
+from tactile_conversions.stop_signals import init_ros, until_stop_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path
 from tactile_description.command_line import error_exit, number_argument, stops_quietly_on_closed_pipe
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         sensor = check_tool_inputs(sensor_config, args.scene, log_dir)
     except (SensorConfigError, SceneError, LogDirError) as exc:
         return error_exit("tactile-demo", exc)
-    rclpy.init()
+    init_ros()
     monitor = Monitor(sensor.grid.rows, sensor.grid.cols)
     graph = start_tool_graph("tactile-demo", sensor_graph(sensor, sensor_config, "sim", args.scene,
                                                           model_dir=args.model), log_dir, monitor)

@@ -41,7 +41,7 @@ from tactile_bringup.processes import (
     stop_nodes,
 )
 from tactile_conversions.ros_time import time_to_seconds
-from tactile_conversions.stop_signals import until_stop_signal
+from tactile_conversions.stop_signals import init_ros, until_stop_signal
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path
 from tactile_description.command_line import (
@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     nodes = sensor_graph(sensor, sensor_config, "sim", args.scene, model_dir=args.model, backend=args.backend,
                          precision=args.precision)
     graph = [measured_spec(spec, args.markers_rate) for spec in nodes]
-    rclpy.init()
+    init_ros()
     probe = LatencyProbe()
     windows = []
     started = start_tool_graph("tactile-latency", graph, log_dir, probe)

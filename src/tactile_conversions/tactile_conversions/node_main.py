@@ -12,7 +12,7 @@ import rclpy
 from rclpy.node import Node
 
 from tactile_conversions.parameters import ParameterError
-from tactile_conversions.stop_signals import stopped_by_signal
+from tactile_conversions.stop_signals import init_ros, stopped_by_signal
 from tactile_description.command_line import INPUT_ERROR_EXIT, one_line
 
 #: How long the middleware may take to destroy the node and the context once the node has stopped. Fast DDS 3.2.3
@@ -26,8 +26,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
     """Spin the node built by `make_node` until interrupted (SIGINT) or terminated (SIGTERM, ros2 launch).
 
     rclpy's signal handler shuts the ROS context down at once, from another thread, wherever the node is: in
-    its constructor or in a callback a `create_*` or `publish` then fails ("context is invalid"). Such an
-    error after shutdown was requested is the shutdown itself, so it ends the node cleanly (exit code 0). A
+    its constructor or in a callback a `create_*` or `publish` then fails ("context is invalid"). A Ctrl-C can
+    also surface as another error from inside rclpy (stop_signals.init_ros). Such an error after shutdown was
+    requested is the shutdown itself, so it ends the node cleanly (exit code 0). A
     parameter the node refuses (ParameterError, whose message names the node and the parameter) is printed in one line
     on stderr and ends the process with exit code 2 (SystemExit(INPUT_ERROR_EXIT)), as a command line refuses its
     input. Any other error is printed with its traceback and ends the process with exit code 1 (SystemExit(1)).
@@ -44,7 +45,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None) -> No
     that ended the node, if any, has been printed before the teardown began.
     """
     faulthandler.register(signal.SIGUSR1)
-    rclpy.init(args=args)
+    init_ros(args)
     node = None
     exit_code = 0
     try:

@@ -1,11 +1,16 @@
 """Which errors mean that a Ctrl-C or SIGTERM stopped an rclpy process, and a block that such a stop ends quietly
 (real rclpy context, no DDS traffic)."""
 
+import signal
+
 import pytest
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
-from tactile_conversions.stop_signals import stopped_by_signal, until_stop_signal
+from tactile_conversions.stop_signals import init_ros, stopped_by_signal, until_stop_signal
+
+#: What a Ctrl-C raised inside rclpy's conversion of a taken message became in a bundle node (pybind11's words).
+CONVERSION_ERROR = RuntimeError("Unable to convert call argument '0' to Python object")
 
 
 @pytest.fixture
@@ -34,3 +39,28 @@ def test_a_block_until_a_stop_signal_ends_quietly_on_the_stop_only(context):
         raise RuntimeError("failed to get subscription count: publisher's context is invalid")
     ran_on.append(True)  # reached: the stop did not leave the function
     assert ran_on == [True]
+
+
+@pytest.fixture
+def ros_started_by_init_ros():
+    python_handler = signal.getsignal(signal.SIGINT)
+    init_ros()
+    yield
+    rclpy.try_shutdown()
+    signal.signal(signal.SIGINT, python_handler)
+
+
+def test_an_error_after_a_ctrl_c_is_a_stop_while_rclpy_still_runs(ros_started_by_init_ros):
+    assert not stopped_by_signal(CONVERSION_ERROR)
+    with pytest.raises(KeyboardInterrupt):  # the Python handler that rclpy's passes SIGINT on to, called alone: the
+        signal.getsignal(signal.SIGINT)(signal.SIGINT, None)  # moment before rclpy's thread shuts the context down
+    assert rclpy.ok() and stopped_by_signal(CONVERSION_ERROR)
+    rclpy.shutdown()
+    init_ros()  # a new session starts without the old Ctrl-C
+    assert not stopped_by_signal(CONVERSION_ERROR)
+
+
+def test_a_real_ctrl_c_after_init_ros_raises_keyboard_interrupt_and_counts_as_a_stop(ros_started_by_init_ros):
+    with pytest.raises(KeyboardInterrupt):  # through rclpy's handler, which passes it on to the recording one
+        signal.raise_signal(signal.SIGINT)
+    assert stopped_by_signal(CONVERSION_ERROR)
