@@ -37,12 +37,17 @@ Item = TypeVar("Item")
 
 
 def camera_sync_settings(frame_rate_hz: float) -> dict[str, float | int]:
-    """The default settings for cameras at `frame_rate_hz`: half a frame period for the spread and the period
-    bound (a tighter spread would split jittered frames, a looser one could pair neighbouring frames), two frame
-    periods for a step back that restarts the synchronisation (module docstring)."""
-    half_period_s = 0.5 / frame_rate_hz
-    return {"queue_size": 10, "max_spread_s": half_period_s, "min_period_s": half_period_s,
-            "restart_jump_s": 2.0 / frame_rate_hz}
+    """The default settings for cameras at `frame_rate_hz`: one frame period for the spread, half of one for the
+    period bound, two for a step back that restarts the synchronisation (module docstring).
+
+    Why a whole period: cameras without a common trigger (each camera node has its own timer) capture at phases of
+    their own, and the tightest set of one frame per camera then spans up to (1 - 1/n) of a period, three quarters for
+    four cameras spread evenly. With half a period as the limit only half of the phase sets fit (4 x (1/2)^3); of 100
+    random ones, 30 got no bundle at all (only `too_wide` drops) and 46 % of the frames were bundled, against 94 % with
+    one period. A set always fits in one period, and the tightest-bundle rule still keeps each frame with its nearest
+    neighbours: a bundle is emitted only once no frame still to come could make it tighter."""
+    period_s = 1.0 / frame_rate_hz
+    return {"queue_size": 10, "max_spread_s": period_s, "min_period_s": 0.5 * period_s, "restart_jump_s": 2 * period_s}
 
 
 @dataclass
