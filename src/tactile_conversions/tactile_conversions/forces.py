@@ -63,8 +63,12 @@ def components_problem(forces: np.ndarray, estimated_components: Sequence[str]) 
 
 
 def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:
-    """The total force as a WrenchStamped in the surface frame (torque not estimated: zero)."""
-    return WrenchStamped(header=distribution.header, wrench=Wrench(force=distribution.total_force_n))
+    """The total force the object applies to the surface as a WrenchStamped: a vector in the surface frame, so z is
+    -total fz (negative when pressing; ForceDistribution counts fz positive in compression), x and y are the total
+    fx and fy. A wrench is a vector that tf rotates and RViz draws as it is: with z as ForceDistribution's, its arrow
+    pointed out of the surface while the bin markers point into the gel. Torque is not estimated: zero."""
+    total = distribution.total_force_n
+    return WrenchStamped(header=distribution.header, wrench=Wrench(force=Vector3(x=total.x, y=total.y, z=-total.z)))
 
 
 #: The markers' namespace (config/tactile.rviz enables it by name).

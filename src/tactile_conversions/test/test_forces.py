@@ -46,11 +46,18 @@ def test_components_not_estimated_are_named_and_must_be_zero(grid):
             force_distribution_msg(vertical, grid, Time(), "f", [], [], wrong)
 
 
-def test_wrench_carries_the_total_force_and_stamp(grid):
+def test_wrench_is_the_applied_total_force_as_a_vector_in_the_surface_frame(grid):
+    """Pressing (fz > 0 in compression) pushes along -z; fx and fy keep their direction, as the markers draw them."""
     msg = force_distribution_msg(loaded_bins(grid), grid, Time(sec=3), "tactile_surface", [], [], FORCE_COMPONENTS)
     wrench = wrench_msg(msg)
-    assert wrench.wrench.force.z == pytest.approx(0.35)
-    assert wrench.header.stamp.sec == 3
+    force = wrench.wrench.force
+    assert (force.x, force.y, force.z) == pytest.approx((0.01, -0.02, -0.35))
+    markers = force_markers(loaded_bins(grid), grid, Time(sec=3), "tactile_surface").markers[0]
+    tail, head = markers.points[0], markers.points[1]  # bin (3, 7): (0.01, -0.02, 0.3) N
+    assert np.sign([head.x - tail.x, head.y - tail.y, head.z - tail.z]).tolist() == [1, -1, -1]
+    torque = wrench.wrench.torque
+    assert (torque.x, torque.y, torque.z) == (0.0, 0.0, 0.0)
+    assert wrench.header.stamp.sec == 3 and wrench.header.frame_id == "tactile_surface"
 
 
 def test_non_finite_or_misshapen_forces_are_never_published(grid):
