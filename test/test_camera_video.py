@@ -72,10 +72,13 @@ def test_a_video_file_is_cropped_downsampled_published_and_replayed(collect, tmp
     assert np.all(np.diff(stamps) > 0)
 
 
-def test_a_missing_source_and_a_wrong_frame_size_are_reported_and_the_nodes_keep_running(collect, tmp_path):
+def test_a_missing_source_a_wrong_frame_size_and_a_video_without_frames_are_reported_and_the_nodes_keep_running(
+        collect, tmp_path):
     small = write_video(tmp_path / "small.avi", 160, 120)
+    empty = write_video(tmp_path / "empty.avi", 320, 240, frames=0)  # opens, but holds no frame to decode
     processes = [start_node(camera_spec("missing_camera", "cam1", tmp_path / "no_such_file.avi"), tmp_path),
-                 start_node(camera_spec("small_camera", "cam2", small), tmp_path)]
+                 start_node(camera_spec("small_camera", "cam2", small), tmp_path),
+                 start_node(camera_spec("empty_camera", "cam3", empty, reopen_period_s=0.5), tmp_path)]
     try:
         images = collect(Image, "/tactile/cam2/image", seconds=3.0, qos=qos_profile_sensor_data)
         running = [p.poll() is None for p in processes]
@@ -83,10 +86,13 @@ def test_a_missing_source_and_a_wrong_frame_size_are_reported_and_the_nodes_keep
         codes = stop_nodes(processes)
     missing_log = (tmp_path / "missing_camera.log").read_text()
     small_log = (tmp_path / "small_camera.log").read_text()
-    assert running == [True, True] and codes == [0, 0], missing_log + small_log
+    empty_log = (tmp_path / "empty_camera.log").read_text()
+    assert running == [True, True, True] and codes == [0, 0, 0], missing_log + small_log + empty_log
     assert "cam1: cannot open camera source" in missing_log and "retrying every" in missing_log
     assert "cam2: capture frame is 160 x 120, the sensor description expects 320 x 240" in small_log
     assert images == []
+    # played "again" in silence for ever before 2026-11-25 (loop is true by default); now reopened, and said so
+    assert empty_log.count(f"cam3: {str(empty)!r} delivered no frame; reopening") >= 2, empty_log
 
 
 def write_image_sequence(directory, width: int, height: int):

@@ -75,6 +75,7 @@ class CameraNode(Node):
         self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
         self.next_open_s = 0.0
         self.frames_published = 0
+        self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
         self.timer = self.create_timer(1.0 / frame_rate_hz, self.grab)
 
     def declare_source(self) -> int | str:
@@ -110,6 +111,7 @@ class CameraNode(Node):
             self.next_open_s = self.now_s() + self.reopen_period_s
             return False
         self.get_logger().info(f"{self.camera_id}: reading {self.source!r}")
+        self.frames_since_rewind = 0
         return True
 
     def grab(self) -> None:
@@ -128,9 +130,12 @@ class CameraNode(Node):
             return
         self.publisher.publish(mono8_to_msg(image, stamp, f"{self.camera_id}_optical"))
         self.frames_published += 1
+        self.frames_since_rewind += 1
 
     def on_no_frame(self) -> None:
-        """A video file that ended is played again (`loop`) or ends the reading; any other source is reopened."""
+        """A video file that ended is played again (`loop`) or ends the reading; any other source is reopened, and
+        so is a video file that gave no frame since it was opened or played again (one that OpenCV opens but cannot
+        decode: playing it again would be silent for ever)."""
         if is_video_file(self.source) and not self.loop:
             self.get_logger().info(f"{self.camera_id}: video file {self.source!r} ended ({self.frames_published} "
                                    "frames published; loop false): publishing nothing more")
@@ -138,7 +143,8 @@ class CameraNode(Node):
             self.capture.release()
             self.capture = None
             return
-        if is_video_file(self.source) and self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0):
+        if is_video_file(self.source) and self.frames_since_rewind and self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0):
+            self.frames_since_rewind = 0
             return  # played again from the start
         self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening")
         self.capture.release()
