@@ -101,6 +101,9 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (FusionNode, {"threads": "0"}, "tactile_fusion: parameter threads must be a whole number from 1 to 1024, got 0"),
     # went to ONNX Runtime, whose thread pool took 24 GB for 100000000 threads
     (FusionNode, {"threads": "1025"}, "parameter threads must be a whole number from 1 to 1024, got 1025"),
+    # every bundle is held until the reference is taken: 100000 would be 6.5 GB and 42 minutes without an estimate
+    (FusionNode, {"reference_bundles": "401"}, "parameter reference_bundles must be a whole number from 1 to 400, "
+                                               "got 401"),
     # ended the node with load_predictor's ValueError traceback
     (FusionNode, {"precision": "int4"}, "tactile_fusion: parameters backend and precision: the onnxruntime backend "
                                         "runs fp32, int8, fp16, not 'int4'"),
@@ -110,7 +113,8 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (FusionNode, {"model_dir": "/no/such/model"}, "tactile_fusion: parameter model_dir: no model in /no/such/model"),
     (FusionNode, {"backend": "tensorrt"}, "parameters backend and precision: backend must be one of ['onnxruntime', "
                                           "'torch'], got 'tensorrt'"),
-    (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number >= 1, got 2.5"),
+    (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number from 1 to 400, "
+                                               "got 2.5"),
     # a timer of period 0 (1e-12 s rounded to whole nanoseconds), which fires on every spin
     (SimCameraNode, {"rate_hz": "1e12"}, "tactile_sim_cameras: parameter rate_hz must be at most 1000 Hz, got "
                                          "1000000000000.0"),

@@ -55,6 +55,7 @@ from tactile_description import left_out_components
 from tactile_fusion.artifacts import ModelFileError, threshold_text
 from tactile_fusion.inference import DEFAULT_THREADS, MAX_THREADS, InputError, check_backend, load_predictor
 from tactile_fusion.live_estimation import (
+    MAX_REFERENCE_BUNDLES,
     REFERENCE_BUNDLES,
     BundleSequence,
     FrameResult,
@@ -74,7 +75,7 @@ class FusionNode(Node):
         backend = text(self, "backend", "onnxruntime")
         precision = text(self, "precision", "fp32")
         threads = whole_number(self, "threads", DEFAULT_THREADS, high=MAX_THREADS)
-        reference_bundles = whole_number(self, "reference_bundles", REFERENCE_BUNDLES)
+        reference_bundles = whole_number(self, "reference_bundles", REFERENCE_BUNDLES, high=MAX_REFERENCE_BUNDLES)
         self.publish_markers = boolean(self, "publish_markers", True)
         try:
             markers_rate_hz = rate_hz(self, "markers_rate_hz", MARKERS_RATE_HZ)

@@ -27,6 +27,10 @@ if TYPE_CHECKING:
 
 #: Complete bundles averaged into the reference frames (the fusion node's default `reference_bundles`).
 REFERENCE_BUNDLES = 10
+#: The most `reference_bundles` the fusion node takes: 10 s at 40 Hz. The bundles are held until the reference is
+#: taken (64 KB each for four cameras) and nothing is published meanwhile: 100000 would be 6.5 GB (twice that while
+#: averaged) and 42 min without an estimate.
+MAX_REFERENCE_BUNDLES = 400
 #: Bundles the reference capture waits for its complete ones before it does without the cameras missing from them
 #: (ReferenceFrames): 2 s at the sensor's 40 Hz.
 REFERENCE_PATIENCE_BUNDLES = 80
