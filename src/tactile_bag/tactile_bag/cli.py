@@ -191,8 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except ValueError as exc:  # BagError, MessageTypeError, SensorConfigError, ModelFileError, bad arguments
-        return error_exit(f"tactile-bag {args.command}", exc)
+    except (ValueError, FloatingPointError) as exc:  # BagError, MessageTypeError, SensorConfigError, ModelFileError,
+        return error_exit(f"tactile-bag {args.command}", exc)  # bad arguments; a model that outputs NaN or Inf
 
 
 if __name__ == "__main__":

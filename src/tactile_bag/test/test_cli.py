@@ -2,13 +2,16 @@
 
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import rclpy
+import torch
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
@@ -18,6 +21,7 @@ from tactile_bag.cli import main
 from tactile_bag.play import play
 from tactile_bag.record import record
 from tactile_bag.topics import IMAGE_TYPE
+from tactile_fusion.artifacts import STATE_DICT
 
 
 @pytest.fixture(autouse=True)
@@ -61,6 +65,17 @@ def test_play_and_eval_refuse_a_bag_whose_bytes_changed(flipped_pixels_bag, mode
     assert error_line(capsys) == f"tactile-bag play: {expected}"
     assert main(["eval", str(flipped_pixels_bag), "--model", str(model_dir), "--backend", "torch"]) == 2
     assert error_line(capsys) == f"tactile-bag eval: {expected}"
+
+
+def test_eval_with_a_model_that_outputs_nan_is_an_error_line_not_a_traceback(sim_bag, model_dir, tmp_path, capsys):
+    broken = Path(shutil.copytree(model_dir, tmp_path / "model"))
+    weights = torch.load(broken / STATE_DICT)
+    weights["fusion.expand.bias"][0] = float("nan")
+    torch.save(weights, broken / STATE_DICT)
+    assert main(["eval", str(sim_bag), "--model", str(broken), "--backend", "torch"]) == 2
+    assert error_line(capsys) == ("tactile-bag eval: error: torch fp32: the model produced NaN or Inf from finite "
+                                  "inputs; the model file is corrupt or overflowed: restore model.pt from a copy or "
+                                  "retrain the model")
 
 
 @pytest.mark.parametrize("args, message", [

@@ -33,6 +33,7 @@ from tactile_description import SensorConfigError, left_out_components, load_sen
 from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe, whole_number_argument
 from tactile_fusion.artifacts import (
     METRICS_JSON,
+    MODEL_JSON,
     ModelFileError,
     check_model_fits,
     default_model_dir,
@@ -216,6 +217,9 @@ def cmd_eval(args) -> int:
     from tactile_fusion.plots import grid_bin_size_mm, plot_fz_maps
 
     _setting(check_backend, args.backend, args.precision)
+    if args.out and (Path(args.out) / MODEL_JSON).exists():  # its metrics.json holds what `bench` reports
+        raise SettingsError(f"--out {args.out} holds a model ({MODEL_JSON}): eval would replace the model's "
+                            f"{METRICS_JSON}; give another directory")
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
@@ -382,7 +386,8 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         "(default %(default)s: bf16 where the CPU has bf16 instructions, else fp32; see "
                         "docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
-    parser.add_argument("--seed", type=int, default=train.seed)
+    parser.add_argument("--seed", type=int, default=train.seed, help="of the model's initial weights, the batches, "
+                        "dropout and the imperfect copies (0 to 4294967295, default %(default)s)")
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "
                         f"{','.join(map(str, model.conv_channels))})")
     parser.add_argument("--hidden-features", type=int, default=model.hidden_features)
@@ -428,7 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="only the first N frames of each data set: of the test split, the scene (or its --split), "
                    "the dataset and each hard case")
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
-    p.add_argument("--out", help="write metrics.json and Fz map PNGs here")
+    p.add_argument("--out", help="write metrics.json and Fz map PNGs here (not into a model directory, whose "
+                   "metrics.json they would replace)")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
     p.add_argument("--contact-level", type=contact_level_argument, default=CONTACT_LEVEL_N, metavar="NEWTONS",
                    help="an estimated total Fz from which a frame counts as reporting contact (default %(default)s)")

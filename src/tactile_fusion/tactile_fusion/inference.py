@@ -136,8 +136,10 @@ class ForcePredictor:
 
     def _finite(self, forces: np.ndarray) -> np.ndarray:
         if not np.isfinite(forces).all():
+            remedy = ("re-export it from model.pt (tactile-fusion export)" if self.backend == "onnxruntime" else
+                      "restore model.pt from a copy or retrain the model")
             raise FloatingPointError(f"{self.backend} {self.precision}: the model produced NaN or Inf from finite "
-                                     "inputs; the model file is corrupt or overflowed: re-export it")
+                                     f"inputs; the model file is corrupt or overflowed: {remedy}")
         return forces.reshape(forces.shape[0], self.rows, self.cols, 3).astype(np.float32, copy=False)
 
 

@@ -334,7 +334,11 @@ def _held_out_picks(record: Path, data: dict, data_name: str, source: FrameSet |
         differ.append(f"frames {trained!r} (now {len(source)})")
     if not differ:
         picks = first_frames_split(len(source), source.seed, trained)[split]
-        recorded = data.get("split_targets_sha256", {}).get(split) if dataset else None
+        digests = data.get("split_targets_sha256", {})
+        if not isinstance(digests, dict):
+            raise ModelFileError(f"{record}: data.split_targets_sha256 must be an object (the SHA-256 of each "
+                                 f"split's forces), got {digests!r}; {REPLACE_RECORD}")
+        recorded = digests.get(split) if dataset else None
         if recorded is None or forces_sha256(source.bin_forces_n[picks]) == recorded:
             return picks
         differ.append(f"other forces in its {split} split")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -11,6 +12,24 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from tactile_description import BinGrid
+from tactile_fusion.artifacts import replace_file, unwritable
+
+
+def save_png(fig, path: str | Path) -> Path:
+    """Write `fig` as a PNG to `path` whole or not at all (artifacts.replace_file) and close it; ModelFileError naming
+    the file if it cannot be written (a directory in its place, a full disk), as for the JSON beside it."""
+    path = Path(path)
+    png = io.BytesIO()
+    try:
+        fig.savefig(png, format="png", dpi=110)
+    finally:
+        plt.close(fig)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        replace_file(path, png.getvalue())
+    except OSError as exc:
+        raise unwritable(path, exc, "run the command again") from exc
+    return path
 
 
 def example_frames(true_n: np.ndarray, count: int = 3) -> list[int]:
@@ -46,11 +65,7 @@ def plot_fz_maps(true_n: np.ndarray, predicted_n: np.ndarray, path: str | Path, 
             ax.tick_params(labelsize=7)
     fig.colorbar(image, ax=axes, label="bin Fz (N)", shrink=0.8)
     fig.suptitle(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def grid_bin_size_mm(grid: BinGrid) -> tuple[float, float]:
@@ -96,8 +111,4 @@ def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     bx.set_ylabel("wall time (s)")
     speedup = sweep["speedup"]
     bx.set_title(f"full training / recalibration ({100 * speedup['fraction']:.0f} % data): {speedup['factor']:.1f}x")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)

@@ -46,6 +46,12 @@ def native_bf16() -> bool:
                 or getattr(cpu, "_is_amx_tile_supported", lambda: False)())
 
 
+#: The largest TrainConfig.seed: numpy's and torch's generators take seeds derived from it (seed * 100003 + epoch for
+#: an epoch's dropout masks must fit torch's 64-bit seed); a negative seed failed in numpy, 2e14 in torch, both with a
+#: traceback once the data had been simulated.
+MAX_SEED = 2**32 - 1
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """How to train. Two runs with the same config, data and seed on the same kind of CPU give the same weights (the
@@ -100,6 +106,8 @@ class TrainConfig:
     recalibration_epochs: int = 7  # modular recalibration: epochs of the last layers on cached features
 
     def __post_init__(self):
+        if not (is_whole_number(self.seed, 0) and self.seed <= MAX_SEED):
+            raise ValueError(f"TrainConfig.seed must be a whole number from 0 to {MAX_SEED}, got {self.seed!r}")
         if not is_whole_number(self.head_epochs, 0):
             raise ValueError(f"TrainConfig.head_epochs must be a whole number >= 0, got {self.head_epochs!r}")
         for name in ("max_epochs", "batch_size", "head_batch_size", "patience", "recalibration_epochs", "head_cycles"):

@@ -367,6 +367,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
 @pytest.mark.parametrize("command, setting, message", [
     ("train", ["--head-dropout", "1.5"], "TrainConfig.head_dropout must be in [0, 1)"),
     ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be a whole number >= 1"),
+    ("train", ["--seed", "-1"], "TrainConfig.seed must be a whole number from 0 to 4294967295, got -1"),
     ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
     ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
     ("train", ["--head-misalign-rotation-deg", "50"], "TrainConfig.head_misalign_rotation_deg must be in [0, 45]"),
@@ -491,6 +492,15 @@ def test_eval_of_a_dataset_takes_its_first_frames_shows_progress_and_plots_the_s
                                                         "test")
 
 
+def test_eval_refuses_to_write_into_a_model_directory(tiny_model, capsys):
+    """It replaced the model's metrics.json, the per-backend figures bench reports, with its own report."""
+    out, _ = tiny_model
+    recorded = (out / "metrics.json").read_bytes()
+    assert f"--out {out} holds a model (model.json): eval would replace the model's metrics.json" in refusal(
+        capsys, "eval", "--model", out, "--frames", "2", "--out", out)
+    assert (out / "metrics.json").read_bytes() == recorded
+
+
 def test_export_refuses_a_model_of_another_sensor_before_it_simulates_frames(tiny_model, capsys, monkeypatch):
     from tactile_fusion import pipeline
 
@@ -553,6 +563,9 @@ def _edited_json(path: Path, change) -> None:
      r"model.pt cannot be read or does not fit model.json \(it holds a Tensor, not a state dict\)"),
     (MODEL_JSON, lambda p: _edited_json(p, lambda d: d.update(format_version="1")), "eval",
      "model.json: format_version '1' is not 1; retrain the model"),
+    (TRAINING_JSON, lambda p: _edited_json(p, lambda d: d["data"].update(split_targets_sha256=["0" * 64])), "eval",
+     r"training.json: data.split_targets_sha256 must be an object \(the SHA-256 of each split's forces\), "
+     r"got \['0+'\]; restore it from a copy"),
     (METRICS_JSON, lambda p: _edited_json(p, lambda d: d["backends"]["onnxruntime_fp32"].update(
         rmse_bin_n=[0, 0, None])),
      "bench --runs 1", r"metrics.json: the figures of onnxruntime_fp32 must be numbers, got \{'rmse_bin_fz_n': None\}; "

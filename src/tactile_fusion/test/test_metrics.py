@@ -171,3 +171,14 @@ def test_figures_are_written(tmp_path):
                              for key in ("rmse_bin_n", "rmse_total_n")},
              "speedup": {"fraction": 1.0, "factor": 7.0}}
     assert plot_recalibration(sweep, tmp_path / "recal.png").stat().st_size > 10_000
+
+
+def test_a_figure_that_cannot_be_written_is_an_error_naming_the_file_and_leaves_nothing_half_written(tmp_path):
+    """A directory where the PNG goes (or a full disk) ended eval with a traceback."""
+    from tactile_fusion.artifacts import ModelFileError
+
+    true = np.abs(np.random.default_rng(0).normal(size=(3, 4, 5, 3))) * 0.01
+    (tmp_path / "fz.png").mkdir()
+    with pytest.raises(ModelFileError, match=f"{tmp_path / 'fz.png'}.* cannot be written .*run the command again"):
+        plot_fz_maps(true, true, tmp_path / "fz.png", "test")
+    assert [p.name for p in tmp_path.iterdir()] == ["fz.png"] and not any((tmp_path / "fz.png").iterdir())

@@ -260,6 +260,9 @@ def test_single_camera_training_with_one_frame_batches_is_refused_clearly(frames
     ("loss_eps", float("inf"), "loss_eps must be a finite number > 0"),
     ("min_learning_rate", -1e-5, "min_learning_rate must be a finite number >= 0, got -1e-05"),
     ("min_learning_rate", float("nan"), "min_learning_rate must be a finite number >= 0, got nan"),
+    ("seed", -1, "seed must be a whole number from 0 to 4294967295, got -1"),
+    ("seed", 2**32, "seed must be a whole number from 0 to 4294967295, got 4294967296"),
+    ("seed", 1.5, "seed must be a whole number"),
 ])
 def test_bad_train_config_is_rejected(setting, value, message):
     with pytest.raises(ValueError, match=f"TrainConfig.{message}"):
