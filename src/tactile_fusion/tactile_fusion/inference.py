@@ -170,13 +170,26 @@ class OnnxRuntimePredictor(ForcePredictor):
         super().__init__(described.camera_ids, described.rows, described.cols, described.config.image_size,
                          precision, described.components, described.fz_threshold_n)
         self.session = _graph_session(Path(onnx_path), threads)
-        mismatches = graph_mismatches(self.session.get_modelmeta().custom_metadata_map, model_fields(described))
+        mismatches = (graph_mismatches(self.session.get_modelmeta().custom_metadata_map, model_fields(described))
+                      + self._shape_mismatches())
         if mismatches:
             raise ModelFileError(f"{onnx_path} was exported from another model than its model.json describes "
                                  f"({'; '.join(mismatches)}): files of two models are mixed, or model.json was "
                                  "edited after export; put back the model.json that came with the graphs, or, if "
                                  "only its Fz threshold was meant to change, re-export them (tactile-fusion export "
                                  f"--model {Path(onnx_path).parent})")
+
+    def _shape_mismatches(self) -> list[str]:
+        """The graph's inputs and output whose names or fixed sizes differ from the model that model.json describes.
+        The metadata check alone misses a graph that names nothing (exported before 2026-11-24): one of another
+        model then failed at its first frame with numpy's reshape error."""
+        n, size = len(self.camera_ids), self.image_size
+        needed = {"images": ["batch", n, size, size], "reference": [n, size, size],
+                  "bin_forces_n": ["batch", self.rows, self.cols, 3]}
+        found = {t.name: t.shape for t in (*self.session.get_inputs(), *self.session.get_outputs())}
+        return [f"{name} {found.get(name)} in the graph, {shape} in model.json" for name, shape in needed.items()
+                if found.get(name) is None or len(found[name]) != len(shape)
+                or any(isinstance(want, int) and got != want for got, want in zip(found[name], shape, strict=True))]
 
     def _run(self, images: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return self.session.run(None, {"images": images, "reference": reference})[0]

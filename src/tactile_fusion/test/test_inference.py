@@ -294,6 +294,25 @@ def test_a_model_with_an_fz_threshold_applies_it_in_every_backend_and_precision(
         np.testing.assert_allclose(predicted, expected, rtol=0, atol=1e-6, err_msg=f"{backend} {precision}")
 
 
+def test_a_graph_of_another_shape_that_names_nothing_in_its_metadata_is_refused_on_loading(model_dir, tmp_path):
+    """Graphs exported before 2026-11-24 name nothing; one of another grid failed at its first frame (reshape)."""
+    out, _ = model_dir
+    model = load_model(out)
+    other = build_model(model.config, model.camera_ids, 4, 3, model.force_scale_n, seed=0)  # 4 x 3 bins, not 3 x 4
+    save_model(other, tmp_path, "synthetic")
+    export_all(other, tmp_path)
+    shutil.copy(out / MODEL_JSON, tmp_path / MODEL_JSON)
+    graph = tmp_path / ONNX_FILES["fp32"]
+    proto = onnx.load(str(graph))
+    del proto.metadata_props[:]
+    onnx.save(proto, str(graph))
+    with pytest.raises(ModelFileError, match=re.escape("(bin_forces_n ['batch', 4, 3, 3] in the graph, ['batch', 3, 4, "
+                                                       "3] in model.json): files of two models are mixed")):
+        load_predictor(tmp_path, "onnxruntime")
+    shutil.copy(out / ONNX_FILES["fp32"], graph)  # the model's own graph
+    assert load_predictor(tmp_path, "onnxruntime").rows == 3
+
+
 def test_a_graph_and_a_model_json_that_differ_in_what_the_graph_has_built_in_are_refused_on_loading(model_dir,
                                                                                                   tmp_path):
     out, _ = model_dir
