@@ -8,8 +8,9 @@ percentile, and the ratio to ONNX Runtime float32 measured in the same run (the 
 
 Accuracy: the test-split metrics of each backend and precision that `tactile-fusion train` wrote into the model
 directory's metrics.json, for the files it measured: an entry whose file (ONNX graph or state dict) is no longer
-the one metrics.json records the SHA-256 of (e.g. re-exported with other package versions) gets None and is listed
-under `accuracy_stale`. None everywhere for a directory without metrics.json.
+the one metrics.json records the SHA-256 of (e.g. re-exported with other package versions), or whose model.json is
+not the one measured with (the torch backend reads its Fz threshold there: `export --fit-threshold` changes it and
+not model.pt), gets None and is listed under `accuracy_stale`. None everywhere for a directory without metrics.json.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_fusion.artifacts import (
     METRICS_JSON,
+    MODEL_JSON,
     ModelFileError,
     backend_file,
     default_model_dir,
@@ -58,8 +60,9 @@ def call_times_s(predictor, images: np.ndarray, reference: np.ndarray, calls: in
 
 def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
     """({backend_precision: {rmse_bin_fz_n, rmse_total_fz_n, max_abs_deviation_from_torch_fp32_n, frames}}, stale) from
-    the model directory's metrics.json, for the backends and precisions there are now: the entries whose file is
-    still the one measured, and the keys of those whose file changed since (or has no recorded SHA-256).
+    the model directory's metrics.json, for the backends and precisions there are now: the entries whose file and
+    model.json are still the ones measured, and the keys of those whose file or model.json changed since (or whose
+    file has no recorded SHA-256).
     ({}, []) without metrics.json; ModelFileError for a metrics.json that is damaged, lacks figures or has figures that
     are not numbers."""
     path = model_dir / METRICS_JSON
@@ -77,7 +80,9 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
             continue
         if not isinstance(entry, dict):
             raise ModelFileError(f"{path}: the figures of {key} must be an object, got {entry!r}; {remedy}")
-        if not model_file.exists() or entry.get("model_file_sha256") != file_sha256(model_file):
+        measured_with = entry.get("model_json_sha256")  # None: recorded before 2026-11-25, its file is checked alone
+        if (not model_file.exists() or entry.get("model_file_sha256") != file_sha256(model_file)
+                or (measured_with is not None and measured_with != file_sha256(model_dir / MODEL_JSON))):
             stale.append(key)
             continue
         try:

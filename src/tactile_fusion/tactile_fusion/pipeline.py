@@ -146,8 +146,9 @@ def measured_frames(key: str, frames: int) -> np.ndarray | None:
 
 def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> tuple[dict, dict]:
     """Test metrics of every backend and precision (on `measured_frames` of the test split where they are fewer,
-    the metrics' "frames"), with each one's largest deviation from torch fp32 (N) on the same frames and the file it
-    ran (name and SHA-256, so that figures of a file that changed since can be told apart), and the predictions:
+    the metrics' "frames"), with each one's largest deviation from torch fp32 (N) on the same frames, the file it
+    ran (name and SHA-256) and model.json's SHA-256, so that figures of files that changed since can be told apart,
+    and the predictions:
     ({backend_precision: metrics}, {backend_precision: (frames, rows, cols, 3) newtons})."""
     results, predictions, picks = {}, {}, {}
     for backend, precisions in BACKENDS.items():
@@ -157,7 +158,8 @@ def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> 
             frames = test if picks[key] is None else test.subset(picks[key])
             metrics, predictions[key] = evaluate(load_predictor(model_dir, backend, precision, threads), frames)
             model_file = backend_file(model_dir, backend, precision)
-            results[key] = {**metrics, "model_file": model_file.name, "model_file_sha256": file_sha256(model_file)}
+            results[key] = {**metrics, "model_file": model_file.name, "model_file_sha256": file_sha256(model_file),
+                            "model_json_sha256": file_sha256(model_dir / MODEL_JSON)}
     for key, predicted in predictions.items():
         reference = predictions["torch_fp32"] if picks[key] is None else predictions["torch_fp32"][picks[key]]
         results[key]["max_abs_deviation_from_torch_fp32_n"] = float(np.abs(predicted - reference).max())

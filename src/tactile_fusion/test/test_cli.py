@@ -177,6 +177,27 @@ def test_bench_leaves_out_the_accuracy_of_a_file_that_changed_since_it_was_measu
                 "bench", "--model", str(changed), "--runs", "5").stdout
 
 
+def test_bench_accuracy_measured_with_another_model_json_is_stale(tiny_model, tmp_path):
+    """The torch backend reads its Fz threshold from model.json (export --fit-threshold changes it, not model.pt):
+    bench went on reporting the figures measured with the old threshold as the model's."""
+    from tactile_fusion.bench import recorded_accuracy
+
+    out, _ = tiny_model
+    changed = Path(shutil.copytree(out, tmp_path / "model"))
+    accuracy, stale = recorded_accuracy(changed)
+    assert stale == [] and "torch_fp32" in accuracy
+    _edited_json(changed / MODEL_JSON, lambda d: d.update(fz_threshold_n=0.05))
+    accuracy, stale = recorded_accuracy(changed)
+    assert accuracy == {} and sorted(stale) == sorted(json.loads((changed / METRICS_JSON).read_text())["backends"])
+
+
+def test_the_shipped_figures_were_measured_with_the_shipped_model_json():
+    from tactile_fusion.bench import recorded_accuracy
+
+    accuracy, stale = recorded_accuracy(default_model_dir())
+    assert stale == [] and len(accuracy) == 5
+
+
 def test_a_backend_measured_on_fewer_test_frames_says_so_and_is_compared_on_those(tiny_model, tmp_path,
                                                                                     monkeypatch):
     from tactile_description.sensor import load_sensor
