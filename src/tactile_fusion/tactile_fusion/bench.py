@@ -92,9 +92,11 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
         except (KeyError, IndexError, TypeError) as exc:
             raise ModelFileError(f"{path}: the figures of {key} are incomplete ({exc!r}); {remedy}") from exc
         wrong = {name: value for name, value in accuracy[key].items()
-                 if not (is_number(value) or (value is None and name in OPTIONAL_FIGURES))}
+                 if not (is_number(value) or (value is None and name in OPTIONAL_FIGURES))
+                 or (name == "frames" and value is not None and not is_whole_number(value))}
         if wrong:
-            raise ModelFileError(f"{path}: the figures of {key} must be numbers, got {wrong}; {remedy}")
+            raise ModelFileError(f"{path}: the figures of {key} must be numbers (frames a whole number >= 1), got "
+                                 f"{wrong}; {remedy}")
     return accuracy, stale
 
 

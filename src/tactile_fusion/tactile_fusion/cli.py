@@ -318,7 +318,7 @@ def cmd_bench(args) -> int:
                            default=0)
         for name, entry in report["backends"].items():
             accuracy = entry["accuracy"]
-            fewer = accuracy and accuracy["frames"] != split_frames
+            fewer = accuracy and accuracy["frames"] is not None and accuracy["frames"] != split_frames
             part = f" ({accuracy['frames']} of its frames)" if fewer else ""
             error = (f"  test split{part} Fz RMSE {1e3 * accuracy['rmse_bin_fz_n']:.2f} mN per bin, "
                      f"{1e3 * accuracy['rmse_total_fz_n']:.0f} mN total" if accuracy else "")

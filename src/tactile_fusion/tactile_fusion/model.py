@@ -38,6 +38,12 @@ GAIN_RANGE = (0.25, 4.0)
 FEATURE_ACTIVATIONS = {"sigmoid": torch.sigmoid, "relu": torch.relu}
 
 
+#: The widest layers a ModelConfig takes, far beyond any measured (512 hidden, 300 camera features, 32 channels):
+#: a mistyped 1000000000 failed only after the training data was simulated, allocating the model (a traceback).
+MAX_FEATURES = 16384
+MAX_CONV_CHANNELS = 1024
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """The network's shape. Camera ids and the bin grid come from the sensor description, not from here."""
@@ -51,12 +57,15 @@ class ModelConfig:
     feature_activation: str = "relu"            # of the fully connected layers, a key of FEATURE_ACTIVATIONS
 
     def __post_init__(self):
-        for name in ("image_size", "hidden_features", "camera_features"):
-            if not is_whole_number(getattr(self, name)):
-                raise ValueError(f"ModelConfig: {name} must be a whole number >= 1, got {getattr(self, name)!r}")
-        if not self.conv_channels or not all(is_whole_number(c) for c in self.conv_channels):
-            raise ValueError(f"ModelConfig: conv_channels must be one or more whole numbers >= 1, got "
-                             f"{self.conv_channels!r}")
+        if not is_whole_number(self.image_size):
+            raise ValueError(f"ModelConfig: image_size must be a whole number >= 1, got {self.image_size!r}")
+        for name in ("hidden_features", "camera_features"):
+            if not (is_whole_number(getattr(self, name)) and getattr(self, name) <= MAX_FEATURES):
+                raise ValueError(f"ModelConfig: {name} must be a whole number from 1 to {MAX_FEATURES}, got "
+                                 f"{getattr(self, name)!r}")
+        if not self.conv_channels or not all(is_whole_number(c) and c <= MAX_CONV_CHANNELS for c in self.conv_channels):
+            raise ValueError(f"ModelConfig: conv_channels must be one or more whole numbers from 1 to "
+                             f"{MAX_CONV_CHANNELS}, got {self.conv_channels!r}")
         pooled = self.image_size // 2 ** len(self.conv_channels)
         if pooled < 1 or self.image_size % 2 ** len(self.conv_channels):
             raise ValueError(f"ModelConfig: image_size {self.image_size} must be divisible by 2^"

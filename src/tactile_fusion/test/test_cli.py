@@ -470,7 +470,10 @@ def one_camera_sensor(tmp_path) -> Path:
     ("train --learning-rate inf --out OUT", "train: error: TrainConfig.learning_rate must be a finite number > 0"),
     ("recalibrate --head-learning-rate inf --out OUT",
      "recalibrate: error: TrainConfig.head_learning_rate must be a finite number > 0"),
-    ("train --hidden-features 0 --out OUT", "train: error: ModelConfig: hidden_features must be a whole number >= 1"),
+    ("train --hidden-features 0 --out OUT", "train: error: ModelConfig: hidden_features must be a whole number from 1 "
+     "to 16384, got 0"),
+    ("train --hidden-features 1000000000 --out OUT", "train: error: ModelConfig: hidden_features must be a whole "
+     "number from 1 to 16384, got 1000000000"),
     ("train --conv-channels 4,-8 --out OUT", "train: error: ModelConfig: conv_channels must be one or more whole"),
     ("train --sensor ONE_CAMERA --head-batch-size 1 --out OUT",
      "train: error: TrainConfig.head_batch_size must be >= 2 for a 1-camera model"),
@@ -589,8 +592,12 @@ def _edited_json(path: Path, change) -> None:
      r"got \['0+'\]; restore it from a copy"),
     (METRICS_JSON, lambda p: _edited_json(p, lambda d: d["backends"]["onnxruntime_fp32"].update(
         rmse_bin_n=[0, 0, None])),
-     "bench --runs 1", r"metrics.json: the figures of onnxruntime_fp32 must be numbers, got \{'rmse_bin_fz_n': None\}; "
+     "bench --runs 1", r"metrics.json: the figures of onnxruntime_fp32 must be numbers \(frames a whole number >= 1\), "
+     r"got \{'rmse_bin_fz_n': None\}; "
      r"measure the model again \(tactile-fusion export --model"),
+    (METRICS_JSON, lambda p: _edited_json(p, lambda d: d["backends"]["torch_fp16"].update(frames=-3)),
+     "bench --runs 1", r"metrics.json: the figures of torch_fp16 must be numbers \(frames a whole number >= 1\), "
+     r"got \{'frames': -3\}"),
 ])
 def test_a_damaged_file_of_a_model_directory_is_one_error_line_naming_it(shipped_copy, capsys, name, damage, command,
                                                                          message):
@@ -598,6 +605,16 @@ def test_a_damaged_file_of_a_model_directory_is_one_error_line_naming_it(shipped
     damage(shipped_copy / name)
     line = refusal(capsys, *command.split(), "--model", shipped_copy, "--quiet")
     assert re.match(f"tactile-fusion {command.split()[0]}: error: {re.escape(str(shipped_copy))}/{message}", line), line
+
+
+def test_bench_names_no_frame_count_for_figures_that_record_none(shipped_copy, capsys):
+    """"frames" may be null (figures recorded before it was): bench printed "(None of its frames)"."""
+    from tactile_fusion.cli import main
+
+    _edited_json(shipped_copy / METRICS_JSON, lambda d: d["backends"]["torch_fp16"].update(frames=None))
+    assert main(["bench", "--model", str(shipped_copy), "--runs", "1"]) == 0
+    line = [line for line in capsys.readouterr().out.splitlines() if line.startswith("torch_fp16")][0]
+    assert "test split Fz RMSE" in line and "of its frames" not in line, line
 
 
 @pytest.mark.parametrize("command", ["eval", "train", "recalibrate"])
