@@ -210,6 +210,12 @@ class FusionNode(Node):
         if reference.rest_levels is None:
             self.get_logger().info("a reference of one bundle: whether the cameras still match it is not "
                                    "checked (reference_bundles of 2 or more for that)")
+        elif reference.still.any():
+            self.get_logger().warning(
+                f"the images of {self.camera_names(reference.still)} did not change at all over the {reference.count} "
+                "reference bundles: a frozen camera, a still image or video as the source, a covered lens or an unlit "
+                "LED (or a scene simulated without sensor noise); while an image equals its reference it is shown at "
+                "rest, whatever is on the surface")
 
     def report_reference_match(self, changed) -> None:
         """Say when a camera's images stop or start again to match its reference frame (live_estimation.

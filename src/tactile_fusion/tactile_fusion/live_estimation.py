@@ -79,6 +79,10 @@ class ReferenceFrames:
         self.images: np.ndarray | None = None  # (C, H, W) uint8 once taken
         self.cameras: np.ndarray | None = None  # (C,) bool once taken: the cameras that have a reference frame
         self.rest_levels: np.ndarray | None = None  # (C,) grey levels once taken (`mismatch_levels`' median)
+        # (C,) bool once taken from two frames or more: the cameras whose frames were all the same, pixel for pixel.
+        # No camera with sensor noise does that; while such a camera's image equals its reference it is shown at
+        # rest (camera_out.with_cameras_at_rest), whatever is on the surface.
+        self.still: np.ndarray | None = None
 
     @property
     def frames_taken(self) -> int:
@@ -90,7 +94,7 @@ class ReferenceFrames:
         self.frames_seen = 0
         self._complete = []
         self._recent.clear()
-        self.images = self.cameras = self.rest_levels = None
+        self.images = self.cameras = self.rest_levels = self.still = None
 
     def add(self, images: np.ndarray, camera_ok: np.ndarray) -> bool:
         """Count one frame; True when this frame completed the reference."""
@@ -121,6 +125,7 @@ class ReferenceFrames:
         self.cameras = cameras
         if len(frames) > 1:
             self.rest_levels = np.median([mismatch_levels(f, self.images) for f in frames], axis=0)
+            self.still = cameras & np.logical_and.reduce([(f == frames[0]).all(axis=(1, 2)) for f in frames[1:]])
         self._complete = []
         self._recent.clear()
 

@@ -2,6 +2,7 @@
 estimates come back through a subscription, its log through stderr."""
 
 import os
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -71,6 +72,21 @@ def test_a_camera_dead_at_start_up_is_named_then_left_out_of_the_reference(fusio
     assert "images of cam1 arrive again, but the reference frames were taken without them" in log
     assert [list(e.missing_camera_ids) for e in estimates] == [["cam1"], ["cam1"]]
     assert all(np.isfinite(e.forces_n).all() and sum(e.forces_n[2::3]) > 0.5 for e in estimates)  # the press
+
+
+def test_a_camera_whose_images_never_change_while_the_reference_is_taken_is_named(fusion, press_frames, capfd):
+    """A frozen camera (or a still source, a covered lens) is shown at rest while its image equals its reference: it
+    went unmentioned."""
+    node, estimates = fusion
+    for sequence in range(2):
+        images = np.array(press_frames[0].images)  # the scene has no sensor noise: its frames at rest are equal
+        images[:, 0, 0] ^= sequence  # a pixel of each camera differs in the second bundle ...
+        images[2] = press_frames[0].images[2]  # ... but cam2's: the same image in both reference bundles
+        node.on_bundle(bundle(SimpleNamespace(images=images), sequence))
+    node.on_bundle(bundle(press_frames[2], 2))
+    assert spin_until(node, lambda: len(estimates) == 1, 10.0)
+    log = capfd.readouterr().err
+    assert "the images of cam2 did not change at all over the 2 reference bundles: a frozen camera" in log, log
 
 
 def test_every_broken_camera_of_a_bundle_is_named_in_one_line(fusion, press_frames, capfd):

@@ -31,6 +31,17 @@ def test_reference_is_the_rounded_mean_of_complete_frames():
     assert np.all(reference.images == 12)
 
 
+def test_the_reference_names_the_cameras_whose_frames_never_changed():
+    reference = ReferenceFrames(3, (2, 2), count=3)
+    frames = np.random.default_rng(0).integers(0, 256, (3, 3, 2, 2)).astype(np.uint8)
+    frames[:, 1] = frames[0, 1]  # camera 1 delivers one image all the time
+    for frame in frames:
+        reference.add(frame, np.ones(3, dtype=bool))
+    assert reference.still.tolist() == [False, True, False]
+    reference.reset()
+    assert reference.still is None
+
+
 def test_reset_takes_the_reference_again():
     reference = ReferenceFrames(1, (1, 1), count=1)
     reference.add(np.full((1, 1, 1), 5, np.uint8), np.array([True]))
