@@ -31,6 +31,7 @@ from tactile_description.command_line import (
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
+from tactile_fusion.live_estimation import MAX_REFERENCE_BUNDLES
 from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, contact_table, metrics_table
 
 
@@ -172,10 +173,11 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--source", default="auto", choices=SOURCES,
                     help="bundle the camera images (images), take the recorded bundles (bundles), or images when "
                          "the bag has every camera's (auto, default)")
-    ev.add_argument("--reference-bundles", type=whole_number_argument(1, "bundles"), default=REFERENCE_BUNDLES,
+    ev.add_argument("--reference-bundles", type=whole_number_argument(1, "bundles", maximum=MAX_REFERENCE_BUNDLES),
+                    default=REFERENCE_BUNDLES,
                     metavar="N",
                     help=f"complete bundles averaged into the reference frames, as fusion_node (default "
-                         f"{REFERENCE_BUNDLES})")
+                         f"{REFERENCE_BUNDLES}, at most {MAX_REFERENCE_BUNDLES})")
     ev.add_argument("--truth-topic", default=None,
                     help=f"ground truth topic; it must be in the bag (default {GROUND_TRUTH_TOPIC}, if there)")
     ev.add_argument("--json", action="store_true", help="print one JSON object")

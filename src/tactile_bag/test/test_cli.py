@@ -90,7 +90,10 @@ def test_eval_with_a_model_that_outputs_nan_is_an_error_line_not_a_traceback(sim
     (["record", "OUT", "--duration", "nan"], "argument --duration: must be a finite number of seconds > 0"),
     (["record", "OUT", "--duration", "1", "--wait", "nan"], "argument --wait: must be a finite number of seconds > 0"),
     (["eval", "BAG", "--reference-bundles", "0"], "argument --reference-bundles: must be a whole number of bundles "
-                                                  ">= 1, got '0'"),
+                                                  "from 1 to 400, got '0'"),
+    # as fusion_node: 10**20 overflowed a deque's maxlen, with a traceback
+    (["eval", "BAG", "--reference-bundles", "100000000000000000000"], "argument --reference-bundles: must be a whole "
+                                                                      "number of bundles from 1 to 400"),
 ])
 def test_bad_numbers_are_refused_before_anything_runs(sim_bag, tmp_path, capsys, args, message):
     """NaN would have recorded or waited for ever (every comparison with it is false)."""
