@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Hashable
 from pathlib import Path
 
 import yaml
@@ -24,7 +25,24 @@ class YamlLoader(yaml.SafeLoader):
     which every number check then refuses with a confusing message. The added resolver needs a dot or an exponent,
     so that `10` stays an integer (counts are checked to be whole numbers); YAML 1.1's floats (`.inf`, `.nan`,
     `1_000.5`) still resolve through PyYAML's own resolver, which this one is added after.
+
+    A key given twice in one mapping is refused (PyYAML keeps the last value: a scene's second `seed:` or `timeline:`
+    silently replaced the first), naming both lines.
     """
+
+    def construct_mapping(self, node, deep=False):
+        first_seen = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *anchor` may repeat keys: that is what it is for
+                continue
+            key = self.construct_object(key_node, deep=True)
+            if isinstance(key, Hashable) and key in first_seen:
+                raise yaml.constructor.ConstructorError(
+                    "while constructing a mapping", node.start_mark,
+                    f"found key {key!r} a second time (first on line {first_seen[key].line + 1})", key_node.start_mark)
+            if isinstance(key, Hashable):
+                first_seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep)
 
 
 YamlLoader.add_implicit_resolver(  # a classmethod: copies SafeLoader's resolvers first, leaving them as they are

@@ -53,3 +53,16 @@ def test_unreadable_non_utf8_and_non_yaml_files_raise_the_given_error_naming_the
     broken.write_text("a: [unclosed")
     with pytest.raises(Refused, match=f"thing file {broken} is not valid YAML"):
         load_yaml_file(broken, "thing file", Refused)
+
+
+def test_a_key_given_twice_in_one_mapping_is_refused_naming_both_lines(tmp_path):
+    """PyYAML keeps the last value: a scene's second `seed:` silently replaced the first."""
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("name: twice\nseed: 1\ncontacts:\n  - {x_mm: 1, x_mm: 2}\n")
+    with pytest.raises(ValueError, match=r"(?s)not valid YAML: .*found key 'x_mm' a second time \(first on line 4\)"):
+        load_yaml_file(scene, "scene file")
+    scene.write_text("name: twice\nseed: 1\nother: {a: 1}\nseed: 2\n")
+    with pytest.raises(ValueError, match=r"(?s)found key 'seed' a second time \(first on line 2\).*line 4"):
+        load_yaml_file(scene, "scene file")
+    scene.write_text("base: &base {a: 1, b: 2}\nderived:\n  <<: *base\n  b: 3\n")  # merge keys may repeat a key
+    assert load_yaml_file(scene, "scene file")["derived"] == {"a": 1, "b": 3}
