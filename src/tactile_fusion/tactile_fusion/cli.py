@@ -98,9 +98,13 @@ def _fractions(text: str) -> list[float]:
     from tactile_fusion.recalibration import checked_fractions
 
     try:
-        return checked_fractions(text.split(","))
+        fractions = checked_fractions(text.split(","))
     except ValueError as exc:
         raise SettingsError(f"--fractions must be comma-separated numbers in (0, 1], got {text!r}") from exc
+    if len(set(fractions)) < 2:
+        raise SettingsError(f"--fractions must name two different fractions or more (the study fits a trend line "
+                            f"through its errors), got {text!r}")
+    return fractions
 
 
 def _train_config(args) -> TrainConfig:
@@ -446,7 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
     _training_options(p)
     p.add_argument("--add-camera", help="the camera to add (default: the sensor's last camera)")
     p.add_argument("--fractions", default="0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0",
-                   help="fractions of the training data for recalibration (default %(default)s)")
+                   help="fractions of the training data for recalibration, two different ones or more (default "
+                   "%(default)s)")
     p.add_argument("--recalibration-epochs", type=int, default=TrainConfig().recalibration_epochs,
                    help="epochs of the retrained layers, with the head phase's batch size and learning rate "
                    "(default %(default)s)")

@@ -83,8 +83,9 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
 
     The gradient phase runs with `config.recalibration_phase()` at the head phase's dropout (`head_dropout`) and
     keeps its last epoch; as in full training, the least-squares fit of the fusion layer follows. Like a head cycle
-    (training.train_phases), the phase is judged after its fit: if the starting point with only its fusion fitted
-    has the lower validation RMSE, that is the model returned (the result's kept_epoch is then 0). Scoring the epochs
+    (training.train_phases), the phase is judged after its fit: unless the trained layers, fitted, have the lower
+    validation RMSE, the starting point with only its fusion fitted is the model returned (the result's kept_epoch is
+    then 0), also when the training diverged to NaN. Scoring the epochs
     before the fit kept the starting point with 10-50 % of the training data (docs/learning.md). Returns the model,
     the training result and the wall time in seconds, feature caching and both fits included. Non-finite targets are
     refused (data.FrameDataError).
@@ -101,10 +102,10 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     trained_val = fit_fusion(model, cached_train, cached_val)["val_rmse_after"]
     trained = copy.deepcopy(model.state_dict())
     model.load_state_dict(start)
-    if fit_fusion(model, cached_train, cached_val)["val_rmse_after"] <= trained_val:
-        result = replace(result, kept_epoch=0)
-    else:
+    if trained_val < fit_fusion(model, cached_train, cached_val)["val_rmse_after"]:  # False for NaN: diverged
         model.load_state_dict(trained)
+    else:
+        result = replace(result, kept_epoch=0)
     model.eval()
     return model, result, time.perf_counter() - started
 

@@ -39,7 +39,10 @@ def recalibration_speedup(full_wall_time_s: float, runs: list[dict]) -> dict:
 
 
 def least_squares_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """(slope, intercept) of the least-squares line through (x, y): y ~ slope x + intercept."""
+    """(slope, intercept) of the least-squares line through (x, y): y ~ slope x + intercept. ValueError for fewer than
+    two distinct x: no line is determined (lstsq would give the smallest-norm one, a made-up slope)."""
+    if len(np.unique(np.asarray(x, dtype=np.float64))) < 2:
+        raise ValueError(f"a least-squares line needs two distinct x, got {list(np.asarray(x).tolist())}")
     design = np.stack([np.asarray(x, dtype=np.float64), np.ones(len(x))], axis=1)
     (slope, intercept), *_ = np.linalg.lstsq(design, np.asarray(y, dtype=np.float64), rcond=None)
     return float(slope), float(intercept)
@@ -64,6 +67,8 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
     recalibration.json and recalibration.png into `out_dir` and return the report."""
     added_camera = camera_to_add(sensor, added_camera)
     fractions = checked_fractions(fractions)
+    if len(set(fractions)) < 2:
+        raise ValueError(f"the study needs two different data fractions or more for its trend line, got {fractions}")
     train_config.recalibration_phase()  # settings that cannot recalibrate fail now, not after two trainings
     splits = training_splits(sensor, scene, dataset, frames, progress)
     head_extra = head_extra if head_extra is not None else SceneDraws.none(sensor)

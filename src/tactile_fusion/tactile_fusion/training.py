@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from tactile_description import FORCE_COMPONENTS
 from tactile_description.value_checks import is_number, is_whole_number
-from tactile_fusion.data import FrameSet, check_finite_targets, forces_sha256
+from tactile_fusion.data import FrameDataError, FrameSet, check_finite_targets, forces_sha256
 from tactile_fusion.fz_threshold import fit_threshold_and_fusion
 from tactile_fusion.least_squares import RIDGES, fit_fusion
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components
@@ -278,11 +278,11 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     STEP_PRECISIONS; validation stays float32). A phase config's resolved head_precision is one of them.
 
     checkpoint_path: written after every epoch (atomically); with `resume`, training continues from it and
-    ends with the same weights as an uninterrupted run. It is refused if it was written with other values of the
-    `compared` settings ({config field: name in the message}; None: all of them) or on top of other frozen weights
-    than the model's (the phase before it changed since), or on other data (`data`, see `data_identity`; a checkpoint
-    that records none is not checked). on_epoch_end(epoch, record) is called after each
-    epoch's checkpoint (an exception raised there interrupts training cleanly).
+    ends with the same weights as an uninterrupted run (with the same torch thread count). It is refused if it was
+    written with other values of the `compared` settings ({config field: name in the message}; None: all of them)
+    or on top of other frozen weights than the model's (the phase before it changed since), or on other data (`data`,
+    see `data_identity`; a checkpoint that records none is not checked). on_epoch_end(epoch, record) is called after
+    each epoch's checkpoint (an exception raised there interrupts training cleanly).
     """
     if step_precision not in ("bf16", "fp32"):
         raise ValueError(f"fit: step_precision must be 'bf16' or 'fp32', got {step_precision!r}")
@@ -297,8 +297,8 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     config.check_batch_sizes(model.n_cameras)
     min_batch = min_batch_frames(model.n_cameras)
     if len(train) < min_batch:
-        raise ValueError(f"fit: a {model.n_cameras}-camera model needs at least {min_batch} training frames (batch "
-                         f"normalisation needs two images per batch), got {len(train)}")
+        raise FrameDataError(f"fit: a {model.n_cameras}-camera model needs at least {min_batch} training frames "
+                             f"(batch normalisation needs two images per batch), got {len(train)}; give more frames")
     # The fused implementation updates all parameters in one kernel: 2.4 ms less per head step than Adam's loop over
     # them; in the end-to-end phase it makes no difference in time (docs/learning.md), one optimiser serves both.
     optimizer = torch.optim.Adam(params, lr=config.learning_rate, fused=True)
@@ -357,7 +357,7 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     model.eval()
     return TrainResult(initial_val_rmse=state["initial_val"], best_epoch=state["best_epoch"],
                        best_val_rmse=state["best_val"], epochs_run=state["epoch"], wall_time_s=state["wall_time_s"],
-                       stopped_early=state["since_best"] >= config.patience, history=state["history"],
+                       stopped_early=state["epoch"] < config.max_epochs, history=state["history"],
                        step_precision=step_precision,
                        kept_epoch=state["best_epoch"] if keep == "best" else state["epoch"])
 

@@ -399,6 +399,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be a whole number >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),
+    ("recalibrate", ["--fractions", "0.5,0.5"], "--fractions must name two different fractions or more"),
 ])
 def test_a_setting_out_of_range_is_refused_with_a_clear_error(tmp_path, command, setting, message):
     result = run(command, *setting, "--frames", "30", "--out", str(tmp_path / "out"), *TINY, check=False)
@@ -486,6 +487,16 @@ def test_bad_arguments_are_refused_with_an_error_line_before_anything_runs(capsy
     assert refusal(capsys, command, *(brief if command in ("train", "recalibrate") else []), *words).startswith(
         f"tactile-fusion {message}")
     assert not (tmp_path / "out").exists()
+
+
+def test_too_few_training_frames_for_batch_normalisation_is_an_error_line(capsys, tmp_path, one_camera_sensor):
+    """3 frames (the fewest a split takes) leave one training frame: a one-camera model needs two. It was a plain
+    ValueError, a traceback."""
+    line = refusal(capsys, "train", "--sensor", one_camera_sensor, "--frames", "3", "--epochs", "1", "--head-epochs",
+                   "1", "--batch-size", "2", "--head-batch-size", "2", "--head-extra-draws", "0", "--out",
+                   tmp_path / "out", *TINY)
+    assert line == ("tactile-fusion train: error: fit: a 1-camera model needs at least 2 training frames (batch "
+                    "normalisation needs two images per batch), got 1; give more frames"), line
 
 
 def test_the_most_threads_are_taken():

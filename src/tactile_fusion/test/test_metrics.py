@@ -147,6 +147,9 @@ def test_contact_table_lists_false_contacts_and_each_band():
 def test_least_squares_line_recovers_a_line():
     x = np.array([0.1, 0.5, 1.0])
     assert least_squares_line(x, 2.0 * x - 1.0) == pytest.approx((2.0, -1.0))
+    for one_x in ([1.0], [0.5, 0.5]):  # no line is determined: lstsq gave a made-up slope of half the error
+        with pytest.raises(ValueError, match="a least-squares line needs two distinct x"):
+            least_squares_line(np.array(one_x), np.full(len(one_x), 0.004))
 
 
 def test_a_trend_line_is_drawn_in_millinewtons_over_the_fractions_measured():

@@ -625,6 +625,12 @@ def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_t
     assert fitted["ridge"] is not None  # the fit changed the start
     for key, value in start.state_dict().items():
         assert torch.equal(wrecked.state_dict()[key], value), key
+    # One so large that the layers diverge to NaN: the start is kept as well (NaN compared False, and the NaN weights
+    # were returned).
+    diverged, result, _ = recalibrate(base, full_train, full_val,
+                                      replace(config, head_learning_rate=1e30, head_precision="fp32"))
+    assert np.isnan(result.history[-1]["val_rmse"]) and result.kept_epoch == 0
+    assert all(torch.equal(diverged.state_dict()[key], value) for key, value in start.state_dict().items())
     with pytest.raises(ValueError, match="at least one more"):
         add_camera(base, ("left",))
 

@@ -189,6 +189,9 @@ def test_early_stopping_keeps_the_best_epoch(frames, tiny_config):
     from tactile_fusion.training import normalised_rmse
 
     assert normalised_rmse(model, val) == pytest.approx(result.best_val_rmse, rel=1e-5)
+    # Every epoch ran: not stopped early, even if no epoch beat the start (it was reported as stopped early then).
+    _, result = trained(frames, tiny_config, TrainConfig(max_epochs=2, batch_size=4, learning_rate=50.0, patience=2))
+    assert result.epochs_run == 2 and result.best_epoch == 0 and not result.stopped_early
 
 
 def test_keep_last_returns_the_last_epoch_even_after_a_better_one(frames, tiny_config):
