@@ -194,6 +194,17 @@ def press_problem(sensor: SensorDescription, shape: Shape, depth_m: float) -> st
     return None
 
 
+def shear_problem(sensor: SensorDescription, shear_m: float) -> str | None:
+    """Why a shear of `shear_m` (its length) is outside the contact models' range, or None if it is not: one longer
+    than the compliant gel is thick."""
+    max_shear_m = compliant_layer(sensor).thickness_m
+    if shear_m <= max_shear_m:
+        return None
+    return (f"a shear of {shear_m * 1e3:.4g} mm is longer than the {max_shear_m * 1e3:.4g} mm compliant gel of sensor "
+            f"{sensor.name!r} is thick; the contact models keep the contact where it was pressed, which holds for a "
+            f"shear short against the gel: shear at most {max_shear_m * 1e3:.4g} mm")
+
+
 def check_contact(sensor: SensorDescription, contact: Contact) -> None:
     """Raise ValueError if the contact is outside the contact models' range (see press_problem)."""
     problem = press_problem(sensor, contact.shape, contact.depth_m)
@@ -379,7 +390,11 @@ def press_contact(x_mm: float, y_mm: float, depth_mm: float, shape: str = "spher
 
 
 def press_report(sensor: SensorDescription, contact: Contact, model: GroundTruthModel) -> dict:
-    """The JSON object `tactile-sim press --json` prints: the bin forces of one contact and their total."""
+    """The JSON object `tactile-sim press --json` prints: the bin forces of one contact and their total. A shear the
+    scenes refuse (shear_problem) is refused here too (ValueError)."""
+    problem = shear_problem(sensor, float(np.hypot(*contact.shear_m)))
+    if problem is not None:
+        raise ValueError(f"Contact: {problem}")
     forces = model.bin_forces([contact])
     shape = contact.shape
     return {

@@ -25,9 +25,8 @@ import numpy as np
 from tactile_description import BinGrid, SensorDescription, default_sensor_path
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_description.yaml_fields import YamlFields, load_yaml_file
-from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, press_problem
+from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, press_problem, shear_problem
 from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
-from tactile_sim.elastic import compliant_layer
 
 MM = 1e-3
 SEGMENT_KINDS = ("rest", "press", "contacts", "press_grid", "random_presses", "path")
@@ -377,17 +376,14 @@ class Scene:
         contact models' range (contact.press_problem, each contact against its own indenter), shears at most the
         compliant gel's thickness, margins, jitter and separations that fit the surface, effect cameras among the
         sensor's."""
-        max_shear_m = compliant_layer(sensor).thickness_m
         for segment in self.segments:
             for extremes in segment.extremes:
                 problem = press_problem(sensor, extremes.shape, extremes.depth_m)
                 if problem is not None:
                     raise SceneError(f"{extremes.where}: {problem}")
-                if extremes.shear_m > max_shear_m:
-                    raise SceneError(f"{extremes.where}.shear_mm: a shear of {extremes.shear_m / MM:.4g} mm is longer "
-                                     f"than the {max_shear_m / MM:.4g} mm compliant gel of sensor {sensor.name!r} is "
-                                     f"thick; the contact models keep the contact where it was pressed, which holds "
-                                     f"for a shear short against the gel: shear at most {max_shear_m / MM:.4g} mm")
+                problem = shear_problem(sensor, extremes.shear_m)
+                if problem is not None:
+                    raise SceneError(f"{extremes.where}.shear_mm: {problem}")
             if segment.kind in _SURFACE_CHECKS:
                 _SURFACE_CHECKS[segment.kind](segment.params, segment.where, sensor.grid)
         ctx = self.effect_context(sensor)

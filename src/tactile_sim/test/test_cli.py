@@ -122,3 +122,6 @@ def test_unusable_paths_unsafe_names_and_huge_counts_get_one_line_and_status_2(t
     assert not (tmp_path / "d").exists()
     assert "a / h = 2.5, above 1" in refused("press", "--x-mm", "20", "--y-mm", "20", "--depth-mm", "1", "--shape",
                                              "punch", "--radius-mm", "10")
+    # a scene refused it, one press reported fx +1.3 N for it
+    assert "a shear of 5 mm is longer than the 4 mm compliant gel" in refused(
+        "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "1", "--shear-x-mm", "3", "--shear-y-mm", "4")
