@@ -29,6 +29,13 @@ SENSOR_ENV = "TACTILE_SENSOR_CONFIG"
 MAX_IMAGE_SIDE_PX = 4096
 
 
+#: The most bins and particles a sensor description may give, 25 and 130 times the reference sensor's 650 and 7497: a
+#: larger value is a typo (bin_rows: 2600000000, per_mm3: 1.0e9) that ended in a traceback of a failed allocation of
+#: terabytes in the simulator.
+MAX_BINS = 16384
+MAX_PARTICLES = 1_000_000
+
+
 #: The highest camera frame rate a sensor description may give: a fast USB camera runs at a few hundred Hz, and the
 #: camera nodes take at most 1 kHz (tactile_conversions.parameters.MAX_RATE_HZ), where a higher rate read from the
 #: description was refused as if the user had set their `rate_hz`.
@@ -228,6 +235,9 @@ def _parse(raw: dict, source: str) -> SensorDescription:
                    width_m=surface.number("width_mm", positive=True) * MM,
                    length_m=surface.number("length_mm", positive=True) * MM)
     surface.finish()
+    if grid.rows * grid.cols > MAX_BINS:
+        raise SensorConfigError(f"{source}: surface {grid.rows} x {grid.cols} bins is more than {MAX_BINS} bins; give "
+                                "the sensor's real bin grid")
 
     layer_nodes = top.raw("gel_layers", required=True)
     if not isinstance(layer_nodes, list) or not layer_nodes:
@@ -298,6 +308,10 @@ def _parse(raw: dict, source: str) -> SensorDescription:
         raise SensorConfigError(f"{source}: particles.per_mm3 = {particles.per_m3 * MM**3:g} puts no particle in the "
                                 f"{volume_mm3:.4g} mm^3 of layer {particles.layer!r}; the cameras would see nothing: "
                                 f"use at least {0.5 / volume_mm3:.3g} per mm^3")
+    if description.particle_count > MAX_PARTICLES:
+        raise SensorConfigError(f"{source}: particles.per_mm3 = {particles.per_m3 * MM**3:g} puts "
+                                f"{description.particle_count:.3g} particles in layer {particles.layer!r}, more than "
+                                f"{MAX_PARTICLES}; give the gel's real particle density")
     for cam in cameras:
         if cam.position_m[2] > -description.gel_thickness_m:
             raise SensorConfigError(f"{source}: camera {cam.camera_id} at z = {cam.position_m[2] / MM} mm is "

@@ -91,6 +91,10 @@ def _broken(tmp_path, edit):
     (lambda r: r["cameras"].update(units=[]), "at least one camera"),
     (lambda r: r["gel_layers"][2].update(name="particle_layer"), r"gel_layers\[\*\].name must be unique"),
     (lambda r: r["particles"].update(per_mm3=1e-6), r"particles.per_mm3 = 1e-06 puts no particle in the 7497 mm\^3"),
+    # failed allocations of terabytes in the simulator, with a traceback
+    (lambda r: r["particles"].update(per_mm3=1e9), r"particles.per_mm3 = 1e\+09 puts 7.5e\+12 particles in layer "
+                                                   r"'particle_layer', more than 1000000; give the gel's real"),
+    (lambda r: r["surface"].update(bin_rows=2600000000), "surface 2600000000 x 25 bins is more than 16384 bins"),
     (lambda r: r["cameras"]["output"].update(width=100000, height=100000),
      r"cameras.output 100000 x 100000 px is larger than the 240 x 240 px crop"),
     (lambda r: r["cameras"]["output"].update(height=241), r"cameras.output 128 x 241 px is larger than the 240 x 240"),
