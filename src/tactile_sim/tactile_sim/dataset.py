@@ -96,11 +96,10 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
     }
     _write_meta(directory, meta)
     np.save(directory / "reference.npy", sim.reference_images())
-    images = np.lib.format.open_memmap(directory / "images.npy", mode="w+", dtype=np.uint8, shape=(n, c, height, width))
-    forces = np.lib.format.open_memmap(directory / "forces.npy", mode="w+", dtype=np.float32,
-                                       shape=(n, sensor.grid.rows, sensor.grid.cols, 3))
-    camera_ok = np.lib.format.open_memmap(directory / "camera_ok.npy", mode="w+", dtype=bool, shape=(n, c))
-    times = np.lib.format.open_memmap(directory / "times_s.npy", mode="w+", dtype=np.float64, shape=(n,))
+    images = _reserved_array(directory / "images.npy", np.uint8, (n, c, height, width))
+    forces = _reserved_array(directory / "forces.npy", np.float32, (n, sensor.grid.rows, sensor.grid.cols, 3))
+    camera_ok = _reserved_array(directory / "camera_ok.npy", bool, (n, c))
+    times = _reserved_array(directory / "times_s.npy", np.float64, (n,))
     with (directory / "contacts.json.tmp").open("w") as contacts_file:
         contacts_file.write("[\n")
         for frame in tqdm(sim.stream(scene), total=n, disable=not progress, desc=f"{scene.name} -> {directory}",
@@ -120,6 +119,20 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
     meta["complete"] = True
     _write_meta(directory, meta)
     return directory
+
+
+def _reserved_array(path: Path, dtype, shape: tuple[int, ...]) -> np.memmap:
+    """A new .npy file of `shape`, memory-mapped for writing, with its disk space reserved now. A memory-mapped file
+    is created sparse: on a disk that fills while the frames are written, the write into the mapping is a SIGBUS that
+    killed the process ("Bus error", no message). Reserved, a full disk is an OSError naming the file, at once."""
+    array = np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+    try:
+        with open(path, "r+b") as file:
+            os.posix_fallocate(file.fileno(), 0, os.fstat(file.fileno()).st_size)
+    except OSError as exc:
+        del array
+        raise OSError(exc.errno, exc.strerror, str(path)) from exc
+    return array
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -126,3 +127,28 @@ def test_bad_metadata_and_contacts_are_reported(written, tmp_path, name, content
         (broken / name).write_bytes(content)
     with pytest.raises(DatasetError, match=message):
         open_dataset(broken)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MB file system (tmpfs) at tmp_path/disk, unmounted afterwards. Mounting needs root (CAP_SYS_ADMIN), which
+    `make test` has in this project's CI; elsewhere the test is skipped, saying why."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(disk)], capture_output=True,
+                             text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here (needs root): {mounted.stderr.strip()}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+def test_a_disk_that_fills_is_an_error_naming_the_file_not_a_bus_error(sim, small_disk):
+    """The frame arrays were sparse memory-mapped files: writing frames on a full disk killed the process with SIGBUS
+    ("Bus error", exit 135, no message). Their space is reserved now, so the disk is found full at once."""
+    with pytest.raises(OSError, match="No space left on device") as refused:
+        write_dataset(sim, load_scene("demo", sim.sensor), small_disk / "data", progress=False, frames=100)
+    assert refused.value.filename == str(small_disk / "data" / "images.npy")
+    assert json.loads((small_disk / "data" / "meta.json").read_text())["complete"] is False
