@@ -251,14 +251,17 @@ def test_the_bundle_node_starts_over_when_stamps_jump_back_and_logs_what_it_drop
     bundles = []
     ros_probe.create_subscription(ImageBundle, "/tactile/image_bundle", bundles.append, 50)
     cameras = FakeCameras(ros_probe, camera_ids)
-    process = start_node(NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": CONFIG}), tmp_path)
+    # camera_timeout_s 1 s, not the default 0.25 s: a pause of the probe (this process) or the node that long on a
+    # loaded machine would take every camera for lost, and log a second "are back".
+    process = start_node(NodeSpec("tactile_fusion", "bundle_node", "bundle",
+                                  {"sensor_config": CONFIG, "camera_timeout_s": 1.0}), tmp_path)
     try:
         assert spin_until(ros_probe, lambda: all(p.get_subscription_count() for p in cameras.publishers.values())
                           and ros_probe.count_publishers("/tactile/image_bundle"), 30.0)
         cameras.play(100.0, 20)
         cameras.play(100.0, 20)  # the bag again
-        cameras.play(100.5, 20, cameras=camera_ids[1:])  # cam0 falls silent for 0.5 s, twice camera_timeout_s
-        cameras.play(101.0, 6)  # and is back
+        cameras.play(100.5, 80, cameras=camera_ids[1:])  # cam0 falls silent for 2 s, twice camera_timeout_s
+        cameras.play(102.5, 6)  # and is back
         spin_until(ros_probe, lambda: False, 1.5)  # time for the drop report (every second) and the last bundles
         running = process.poll() is None
     finally:

@@ -52,7 +52,8 @@ def test_a_dropped_camera_degrades_bundles_and_they_recover(collect, tmp_path):
         codes = stop_nodes(processes)
     logs = "\n".join(p.read_text() for p in tmp_path.glob("*.log"))
     assert codes == [0, 0], logs
-    assert len(bundles) > 100, logs
+    # The dropout lasts about 110 bundles; the full bundles before it may be few if the probe came in late.
+    assert sum(tuple(m.camera_ids) == DEGRADED for m in bundles) >= 80, logs
     assert recovered_from_dropout(bundles), [tuple(m.camera_ids) for m in bundles]
     assert {tuple(m.camera_ids) for m in bundles} <= {FULL, DEGRADED}
     stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in bundles])
