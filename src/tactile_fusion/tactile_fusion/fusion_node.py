@@ -59,6 +59,7 @@ from tactile_fusion.live_estimation import (
     REFERENCE_BUNDLES,
     BundleSequence,
     FrameResult,
+    FrozenCameras,
     LiveEstimation,
     ProcessingLoad,
 )
@@ -160,6 +161,7 @@ class FusionNode(Node):
             self.report_reference(result)
             return
         self.report_reference_match(result.match_changed)
+        self.report_frozen(result.frozen_changed)
         if result.unreferenced.any():
             self.get_logger().warning(
                 f"images of {self.camera_names(result.unreferenced)} arrive again, but the reference frames were taken "
@@ -232,6 +234,18 @@ class FusionNode(Node):
                     f"nothing on the surface, take the reference again: {self.capture_command()}")
             else:
                 self.get_logger().info(f"{name}'s images match its reference frame again ({level:.1f} grey levels)")
+
+    def report_frozen(self, changed) -> None:
+        """Say when a camera starts or stops sending the same image again and again (live_estimation.FrozenCameras)."""
+        for camera in changed:
+            name = self.sensor.camera_ids[camera]
+            if self.live.frozen.frozen[camera]:
+                self.get_logger().warning(
+                    f"{name} has sent the same image, pixel for pixel, for {FrozenCameras.FRAMES} bundles: the camera "
+                    "or its driver is stuck, its source is a still image, or its lens is covered; its part of the "
+                    "estimates does not follow the surface (it stays in camera_ids)")
+            else:
+                self.get_logger().info(f"{name}'s images change again")
 
     def camera_names(self, mask) -> str:
         return ", ".join(c for c, m in zip(self.sensor.camera_ids, mask, strict=True) if m)

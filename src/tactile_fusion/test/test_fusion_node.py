@@ -15,7 +15,7 @@ from tactile_conversions.spinning import spin_until
 from tactile_conversions.topics import ESTIMATE_TOPIC
 from tactile_description import load_sensor
 from tactile_fusion.fusion_node import FusionNode
-from tactile_fusion.live_estimation import REFERENCE_PATIENCE_BUNDLES
+from tactile_fusion.live_estimation import REFERENCE_PATIENCE_BUNDLES, FrozenCameras
 from tactile_msgs.msg import ForceDistribution, ImageBundle
 from tactile_sim import Simulator
 from tactile_sim.scene import parse_scene
@@ -87,6 +87,22 @@ def test_a_camera_whose_images_never_change_while_the_reference_is_taken_is_name
     assert spin_until(node, lambda: len(estimates) == 1, 10.0)
     log = capfd.readouterr().err
     assert "the images of cam2 did not change at all over the 2 reference bundles: a frozen camera" in log, log
+
+
+def test_a_camera_that_sends_the_same_image_again_and_again_is_named_and_so_is_its_recovery(fusion, press_frames,
+                                                                                            capfd):
+    node, estimates = fusion
+    count = 2 + FrozenCameras.FRAMES + 1  # the reference, then the first image and FRAMES equal ones
+    for sequence in range(count + 1):
+        images = np.array(press_frames[0].images)
+        images[:, 0, 0] ^= sequence & 1  # the others change from bundle to bundle, as sensor noise makes them
+        if sequence < count:
+            images[2] = press_frames[0].images[2]  # cam2 is stuck on one image, then changes again
+        node.on_bundle(bundle(SimpleNamespace(images=images), sequence))
+    assert spin_until(node, lambda: len(estimates) > 0, 10.0)  # estimated all along (the last 10 are kept)
+    log = capfd.readouterr().err
+    assert log.count(f"cam2 has sent the same image, pixel for pixel, for {FrozenCameras.FRAMES} bundles") == 1, log
+    assert "cam0 has sent" not in log and "cam2's images change again" in log
 
 
 def test_every_broken_camera_of_a_bundle_is_named_in_one_line(fusion, press_frames, capfd):

@@ -8,6 +8,7 @@ from tactile_description import load_sensor
 from tactile_fusion.inference import InputError, load_predictor
 from tactile_fusion.live_estimation import (
     BundleSequence,
+    FrozenCameras,
     LiveEstimation,
     ProcessingLoad,
     ReferenceFrames,
@@ -40,6 +41,20 @@ def test_the_reference_names_the_cameras_whose_frames_never_changed():
     assert reference.still.tolist() == [False, True, False]
     reference.reset()
     assert reference.still is None
+
+
+def test_a_camera_that_sends_the_same_image_frame_after_frame_counts_as_frozen_until_it_changes():
+    frozen = FrozenCameras(2)
+    images = np.random.default_rng(0).integers(0, 256, (2, 4, 4)).astype(np.uint8)
+    ok = np.ones(2, dtype=bool)
+    changes = []
+    for k in range(FrozenCameras.FRAMES + 1):  # the first image, then FRAMES equal ones
+        images[0, 0, 0] = k  # camera 0 changes every frame
+        changes.append(frozen.add(images, ok).tolist())
+    assert changes == [[]] * FrozenCameras.FRAMES + [[1]] and frozen.frozen.tolist() == [False, True]
+    assert frozen.add(images, np.array([True, False])).tolist() == []  # not checked while not ok
+    images[1, 3, 3] ^= 1
+    assert frozen.add(images, ok).tolist() == [1] and not frozen.frozen.any()
 
 
 def test_reset_takes_the_reference_again():
