@@ -36,12 +36,13 @@ class YamlLoader(yaml.SafeLoader):
             if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *anchor` may repeat keys: that is what it is for
                 continue
             key = self.construct_object(key_node, deep=True)
-            if isinstance(key, Hashable) and key in first_seen:
+            if not isinstance(key, Hashable):  # SafeLoader's own construct_mapping refuses it below
+                continue
+            if key in first_seen:
                 raise yaml.constructor.ConstructorError(
                     "while constructing a mapping", node.start_mark,
                     f"found key {key!r} a second time (first on line {first_seen[key].line + 1})", key_node.start_mark)
-            if isinstance(key, Hashable):
-                first_seen[key] = key_node.start_mark
+            first_seen[key] = key_node.start_mark
         return super().construct_mapping(node, deep)
 
 

@@ -73,6 +73,7 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
     if not isinstance(recorded, dict):
         raise ModelFileError(f"{path}: backends must be an object, got {recorded!r}; {remedy}")
     accuracy, stale = {}, []
+    model_json_sha256 = file_sha256(model_dir / MODEL_JSON)
     for backend, precision in ((b, p) for b, precisions in BACKENDS.items() for p in precisions):
         key = f"{backend}_{precision}"
         entry, model_file = recorded.get(key), backend_file(model_dir, backend, precision)
@@ -82,7 +83,7 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
             raise ModelFileError(f"{path}: the figures of {key} must be an object, got {entry!r}; {remedy}")
         measured_with = entry.get("model_json_sha256")  # None: recorded before 2026-11-25, its file is checked alone
         if (not model_file.exists() or entry.get("model_file_sha256") != file_sha256(model_file)
-                or (measured_with is not None and measured_with != file_sha256(model_dir / MODEL_JSON))):
+                or (measured_with is not None and measured_with != model_json_sha256)):
             stale.append(key)
             continue
         try:

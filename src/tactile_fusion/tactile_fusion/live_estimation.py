@@ -251,21 +251,22 @@ class FrozenCameras:
 
     def __init__(self, n_cameras: int):
         self._last: list[np.ndarray | None] = [None] * n_cameras
-        self._repeats = np.zeros(n_cameras, dtype=int)
-        self.frozen = np.zeros(n_cameras, dtype=bool)
+        self._repeats = np.zeros(n_cameras, dtype=int)  # images equal to the one before, in a row
+
+    @property
+    def frozen(self) -> np.ndarray:
+        """(C,) bool: the cameras that count as frozen."""
+        return self._repeats >= self.FRAMES
 
     def add(self, images: np.ndarray, camera_ok: np.ndarray) -> np.ndarray:
         """Count one frame; returns the indices of the cameras whose state (`frozen`) this frame changed."""
-        now = self.frozen.copy()
+        before = self.frozen
         for camera in np.flatnonzero(camera_ok):
             last = self._last[camera]
-            self._repeats[camera] = self._repeats[camera] + 1 if last is not None and np.array_equal(
-                images[camera], last) else 0
+            repeated = last is not None and np.array_equal(images[camera], last)
+            self._repeats[camera] = self._repeats[camera] + 1 if repeated else 0
             self._last[camera] = np.array(images[camera])
-            now[camera] = self._repeats[camera] >= self.FRAMES
-        changed = np.flatnonzero(now != self.frozen)
-        self.frozen = now
-        return changed
+        return np.flatnonzero(self.frozen != before)
 
 
 class ProcessingLoad:

@@ -151,6 +151,7 @@ def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> 
     and the predictions:
     ({backend_precision: metrics}, {backend_precision: (frames, rows, cols, 3) newtons})."""
     results, predictions, picks = {}, {}, {}
+    model_json_sha256 = file_sha256(model_dir / MODEL_JSON)
     for backend, precisions in BACKENDS.items():
         for precision in precisions:
             key = f"{backend}_{precision}"
@@ -159,7 +160,7 @@ def evaluate_model_dir(model_dir: Path, test: FrameSet, threads: int | None) -> 
             metrics, predictions[key] = evaluate(load_predictor(model_dir, backend, precision, threads), frames)
             model_file = backend_file(model_dir, backend, precision)
             results[key] = {**metrics, "model_file": model_file.name, "model_file_sha256": file_sha256(model_file),
-                            "model_json_sha256": file_sha256(model_dir / MODEL_JSON)}
+                            "model_json_sha256": model_json_sha256}
     for key, predicted in predictions.items():
         reference = predictions["torch_fp32"] if picks[key] is None else predictions["torch_fp32"][picks[key]]
         results[key]["max_abs_deviation_from_torch_fp32_n"] = float(np.abs(predicted - reference).max())
