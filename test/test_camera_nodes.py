@@ -56,8 +56,10 @@ def ros_args_node(ros_domain):
 
 
 def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_device_index(ros_args_node):
-    bundle = ros_args_node(BundleNode, {"max_spread_s": "1", "min_period_s": "0", "camera_timeout_s": "2"})
-    assert (bundle.max_spread_s, bundle.min_period_s, bundle.camera_timeout_s) == (1.0, 0.0, 2.0)
+    bundle = ros_args_node(BundleNode, {"max_spread_s": "1", "min_period_s": "0", "camera_timeout_s": "2",
+                                        "keep_grouping_s": "0"})
+    assert (bundle.max_spread_s, bundle.min_period_s, bundle.camera_timeout_s, bundle.keep_grouping_s) == \
+        (1.0, 0.0, 2.0, 0.0)
     assert isinstance(bundle.max_spread_s, float)
     rclpy.try_shutdown()
     camera = ros_args_node(CameraNode, {"camera_id": "cam1", "source": "2", "rate_hz": "30", "reopen_period_s": "2"})
@@ -81,6 +83,7 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (BundleNode, {"max_spread_s": ".nan"}, "tactile_bundle: parameter max_spread_s must be a finite number > 0, "
                                            "got nan"),
     (BundleNode, {"min_period_s": ".nan"}, "parameter min_period_s must be a finite number >= 0, got nan"),
+    (BundleNode, {"keep_grouping_s": "-1"}, "parameter keep_grouping_s must be a finite number >= 0, got -1"),
     (BundleNode, {"camera_timeout_s": ".nan"}, "parameter camera_timeout_s must be a finite number > 0, got nan"),
     (BundleNode, {"camera_timeout_s": ".inf"}, "parameter camera_timeout_s must be a finite number > 0, got inf"),
     (BundleNode, {"max_spread_s": "fast"}, "parameter max_spread_s must be a finite number > 0, got 'fast'"),

@@ -50,6 +50,7 @@ class BundleNode(Node):
         self.max_spread_s = positive_float(self, "max_spread_s", defaults["max_spread_s"])
         self.queue_size = whole_number(self, "queue_size", defaults["queue_size"])
         self.min_period_s = positive_float(self, "min_period_s", defaults["min_period_s"], allow_zero=True)
+        self.keep_grouping_s = positive_float(self, "keep_grouping_s", defaults["keep_grouping_s"], allow_zero=True)
         self.camera_timeout_s = period_s(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
         self.restart_jump_s = defaults["restart_jump_s"]
         self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
@@ -64,7 +65,8 @@ class BundleNode(Node):
         self.create_timer(self.camera_timeout_s / 2, self.check_cameras)
         self.create_timer(1.0, self.report_drops)
         self.get_logger().info(f"bundling cameras {list(self.sensor.camera_ids)} "
-                               f"(max spread {self.max_spread_s * 1e3:.1f} ms)")
+                               f"(max spread {self.max_spread_s * 1e3:.1f} ms, a grouping kept while within "
+                               f"{self.keep_grouping_s * 1e3:.1f} ms of the tightest)")
 
     def destroy_node(self) -> None:
         """Destroy the node, then log the last drops, however recent the previous report. A Ctrl-C or SIGTERM has
@@ -117,7 +119,8 @@ class BundleNode(Node):
             self.sync.reset()  # counts the images it held as dropped
         self.live_cameras = live
         self.sync = ApproximateTimeSync(live, self.queue_size, self.max_spread_s, self.min_period_s,
-                                        self.restart_jump_s, self.dropped, self.on_restart) if live else None
+                                        self.restart_jump_s, self.keep_grouping_s, self.dropped,
+                                        self.on_restart) if live else None
 
     def log_camera_changes(self, live: tuple[str, ...]) -> None:
         """Warn about cameras that fell silent; say when one of those sends again (not at start-up)."""
