@@ -11,11 +11,16 @@ as tight as the tightest. Cameras without a common trigger capture at phases of 
 those phases are about as tight, the stamps' jitter makes first one and then the other the tightest, and every
 switch supersedes a frame of some cameras (of 100 random phase sets of four 40 Hz cameras with 1 ms of jitter,
 400 frames each, 21 lost more than 5 % of their frames that way, the worst 23 %). So the bundle of every stream's
-oldest queued message, the grouping the bundles so far have taken, is emitted as soon as it is less than
-`keep_grouping_s` wider than any bundle holding the pivot could be (messages still to come included), and within
-`max_spread_s`. A grouping that drifts wider than that gives way to the tightest, superseding a frame once. The
-result still depends only on the timestamps: that lower bound never exceeds the tightest bundle's spread, which is
-what the bundle is judged by once it is known.
+oldest queued message goes out as soon as it continues the last bundle's grouping (every stream moved on by about
+the same time since then; a stream that lost a frame moved on by a period more), lies within `max_spread_s`, and is
+less than `keep_grouping_s` wider than any bundle holding the pivot could be (messages still to come included). A
+grouping that drifts wider than that gives way to the tightest, superseding a frame once. The first bundle, and the
+first after a reset, is the tightest.
+
+The output depends only on the timestamps as long as each stream keeps to `min_period_s` and no queue overflows
+(an overflow, or a restart, depends on what had arrived; so it is with message_filters). With the addition as well:
+the lower bound never exceeds the tightest bundle's spread, and the tightest rule emits only once the bound equals
+it, so whether the heads go out does not depend on when it is asked.
 
 Knobs, as in message_filters:
 - `max_spread_s` (max_interval_duration): a bundle whose best spread exceeds it is not emitted; the oldest head
@@ -56,12 +61,11 @@ def camera_sync_settings(frame_rate_hz: float) -> dict[str, float | int]:
     their own, and the tightest set of one frame per camera then spans up to (1 - 1/n) of a period, three quarters for
     four cameras spread evenly. With half a period as the limit only half of the phase sets fit (4 x (1/2)^3); of 100
     random ones, 30 got no bundle at all (only `too_wide` drops) and 46 % of the frames were bundled, against 94 % with
-    one period. A set always fits in one period, and the tightest-bundle rule still keeps each frame with its nearest
-    neighbours: a bundle is emitted only once no frame still to come could make it tighter.
+    one period. A set always fits in one period.
 
     Why a quarter period to keep a grouping (module docstring): of the same kind of 100 phase sets, 400 frames each,
-    with keep_grouping_s 0, 0.05, 0.1 and 0.25 periods, 96.6, 99.0, 99.7 and 99.8 % of the frames were bundled with
-    1 ms of jitter, 91.6, 94.0, 96.0 and 99.3 % with 3 ms; the median spread stayed 11.8 ms (12.2-12.3 ms)."""
+    99.8 % of the frames were bundled against 96.6 % with the tightest bundle alone (1 ms of jitter), 99.2 against
+    91.6 % with 3 ms; half a period bundled 0.05 and 0.6 points more, for wider bundles (docs/nodes.md)."""
     period_s = 1.0 / frame_rate_hz
     return {"queue_size": 10, "max_spread_s": period_s, "min_period_s": 0.5 * period_s, "restart_jump_s": 2 * period_s,
             "keep_grouping_s": 0.25 * period_s}
@@ -158,6 +162,7 @@ class ApproximateTimeSync(Generic[Item]):
         self.on_restart = on_restart
         self._queues: dict[str, deque[tuple[float, Any]]] = {s: deque() for s in self.stream_ids}
         self._last_stamp: dict[str, float] = {}
+        self._last_bundle: dict[str, float] | None = None  # stamp of each stream's message in the last bundle
         self.dropped = dropped if dropped is not None else SyncCounters()
         for s in self.stream_ids:
             self.dropped.per_stream.setdefault(s, 0)
@@ -191,6 +196,7 @@ class ApproximateTimeSync(Generic[Item]):
                 self._drop(s, "reset", len(queue))
                 queue.clear()
         self._last_stamp.clear()
+        self._last_bundle = None
 
     def _drop(self, stream_id: str, reason: str, count: int = 1) -> None:
         setattr(self.dropped, reason, getattr(self.dropped, reason) + count)
@@ -202,8 +208,7 @@ class ApproximateTimeSync(Generic[Item]):
             pivot_stamp = self._queues[pivot_stream][0][0]
             options = self._options_around(pivot_stream, pivot_stamp)
             best, picks, lower_bound = self._tightest_around(options)
-            head_spread = pivot_stamp - min(queue[0][0] for queue in self._queues.values())
-            if head_spread <= self.max_spread_s and head_spread < lower_bound + self.keep_grouping_s:
+            if self._keeps_grouping(pivot_stamp, lower_bound):
                 return self._take(dict.fromkeys(self.stream_ids, 0))
             if best == float("inf") or lower_bound < best:
                 return None  # a message still to come could give a tighter bundle: wait for it
@@ -217,6 +222,21 @@ class ApproximateTimeSync(Generic[Item]):
             picks[pivot_stream] = 0
             return self._take(picks)
         return None
+
+    def _keeps_grouping(self, pivot_stamp: float, lower_bound: float) -> bool:
+        """Whether the queue heads continue the last bundle's grouping and may go out now (module docstring).
+
+        They continue it when every stream moved on by about the same time since the last bundle: the spread of those
+        advances is below half the smallest. A stream that lost a frame moved on by two frame periods where the others
+        moved by one; its head belongs to another grouping, and the tightest rule decides. There is no grouping to
+        keep before the first bundle or after a reset, so the first bundle is always the tightest."""
+        if not self.keep_grouping_s or self._last_bundle is None:
+            return False
+        head_spread = pivot_stamp - min(queue[0][0] for queue in self._queues.values())
+        if not (head_spread <= self.max_spread_s and head_spread < lower_bound + self.keep_grouping_s):
+            return False
+        advances = [self._queues[s][0][0] - self._last_bundle[s] for s in self.stream_ids]
+        return max(advances) - min(advances) < 0.5 * min(advances)
 
     def _options_around(self, pivot_stream: str, pivot_stamp: float) -> dict[str, tuple[int, float, int | None, float]]:
         """Per stream but the pivot's: (before index, before distance, after index or None, after distance bound),
@@ -289,4 +309,5 @@ class ApproximateTimeSync(Generic[Item]):
             stamp, item = queue.popleft()
             stamps.append(stamp)
             items.append(item)
+        self._last_bundle = dict(zip(self.stream_ids, stamps, strict=True))
         return Bundle(self.stream_ids, tuple(stamps), tuple(items))

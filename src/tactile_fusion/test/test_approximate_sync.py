@@ -70,16 +70,17 @@ def test_cameras_without_a_common_trigger_are_bundled_at_any_phases_with_the_def
     """Each camera node runs its own timer, so real cameras capture at phases of their own. With half a period as the
     default spread, 30 of these 100 phase sets got no bundle at all (only too_wide drops) and 46 % of the frames were
     bundled. With one period every set bundles; with the tightest bundle alone (keep_grouping_s 0) the stamps' jitter
-    flipped between two about equally tight groupings: 27 of the sets had more than 4 images superseded, and the
-    worst bundled 29 of its 40 frames. Keeping the grouping, a set loses at most one frame per camera, once, where the
-    grouping of the first frames gives way to the tightest, and its last frame, which waits for one to come."""
+    flipped between two about equally tight groupings: 28 of the sets had more than 3 images superseded, and the
+    worst bundled 29 of its 40 frames. Keeping the grouping, every set keeps the grouping of its first bundle (the
+    tightest) to the end; it loses at most one frame per camera before that bundle and its last frame, which waits
+    for one to come."""
     for phases, arrivals in random_phase_sets(100, 40, jitter_s=0.001):
         sync = ApproximateTimeSync(CAMERAS, **camera_sync_settings(1 / PERIOD))
         bundles = run(sync, arrivals)
-        assert len(bundles) >= 39 and sync.dropped.superseded <= 3, (phases, sync.dropped)
+        assert len(bundles) >= 38 and sync.dropped.superseded <= 3, (phases, sync.dropped)
         assert sync.dropped.total == sync.dropped.superseded, (phases, sync.dropped)
         frames = np.array([b.items for b in bundles])  # (bundles, cameras): frame numbers
-        assert np.all(np.diff(frames, axis=0) >= 1), phases  # no frame twice, each camera's in order
+        assert np.all(np.diff(frames, axis=0) == 1), phases  # one grouping: every camera's next frame each time
         assert np.all(np.ptp(frames, axis=1) <= 1), phases  # each frame with its camera's nearest neighbours
         assert max(b.spread for b in bundles) < PERIOD
 
@@ -93,30 +94,68 @@ def test_evenly_spread_phases_keep_one_grouping_where_the_tightest_bundle_alone_
     kept = ApproximateTimeSync(CAMERAS, **camera_sync_settings(1 / PERIOD))
     assert len(run(tightest, arrivals)) < 190 and tightest.dropped.superseded > 30
     bundles = run(kept, arrivals)
-    assert len(bundles) >= 199 and kept.dropped.total == 0
+    assert len(bundles) >= 198 and kept.dropped.total == kept.dropped.superseded <= 3
     assert max(b.spread for b in bundles) < 0.75 * PERIOD + 0.002
 
 
+def two_cameras(b_offsets_s):
+    """Arrivals of cameras a (at k periods) and b (`b_offsets_s[k]` later), in stamp order."""
+    messages = [("a", k * PERIOD, f"a{k}") for k in range(len(b_offsets_s))]
+    messages += [("b", k * PERIOD + offset, f"b{k}") for k, offset in enumerate(b_offsets_s)]
+    return sorted(messages, key=lambda m: m[1])
+
+
+def test_a_grouping_that_drifts_a_little_wider_than_the_tightest_is_kept():
+    """b lags a by 11 ms, then by 14 ms: a_k-b_k is then 3 ms wider than b_k-a_k+1, within the default quarter
+    period (6.25 ms), so the bundles stay a_k-b_k. The tightest rule alone switches, superseding a frame."""
+    arrivals = two_cameras([0.011] * 5 + [0.014] * 5)
+    kept = ApproximateTimeSync(["a", "b"], **camera_sync_settings(1 / PERIOD))
+    assert [b.items for b in run(kept, arrivals)] == [(f"a{k}", f"b{k}") for k in range(9)]  # b9 waits for a10
+    assert kept.dropped.total == 0
+    tightest = ApproximateTimeSync(["a", "b"], **{**camera_sync_settings(1 / PERIOD), "keep_grouping_s": 0.0})
+    assert [b.items for b in run(tightest, arrivals)][5] == ("a6", "b5")
+    assert tightest.dropped.superseded == 1
+
+
 def test_a_grouping_much_wider_than_the_tightest_gives_way_to_it_once():
-    """a0-b0 are 20 ms apart, b0-a1 5 ms: the first grouping is more than a quarter period wider than the tightest,
-    so a0 is superseded once, and the bundles then follow b_k with a_k+1."""
+    """b lags a by 11 ms, then by 20 ms: a_k-b_k is 15 ms wider than b_k-a_k+1, more than a quarter period, so a5
+    is superseded once and the bundles then follow b_k with a_k+1."""
     sync = ApproximateTimeSync(["a", "b"], **camera_sync_settings(1 / PERIOD))
-    arrivals = sorted([("a", k * PERIOD, f"a{k}") for k in range(10)] + [("b", k * PERIOD + 0.020, f"b{k}")
-                                                                          for k in range(10)], key=lambda m: m[1])
-    bundles = run(sync, arrivals)
-    assert [b.items for b in bundles] == [(f"a{k + 1}", f"b{k}") for k in range(9)]
+    bundles = run(sync, two_cameras([0.011] * 5 + [0.020] * 5))
+    assert [b.items for b in bundles] == [(f"a{k}", f"b{k}") for k in range(5)] + \
+        [(f"a{k + 1}", f"b{k}") for k in range(5, 9)]
     assert sync.dropped.superseded == 1 and sync.dropped.per_stream == {"a": 1, "b": 0}
+
+
+def test_heads_after_a_lost_frame_are_not_taken_for_the_grouping():
+    """cam3 lost its frame 2 and cam2 its frame 3. The heads after the bundle of frames 1, cam3's frame 3 among them,
+    are one period on for cam3 only: another grouping, which the tightest rule judges (the bundle pairs cam3's frame
+    3 with cam1's frame 3, not cam1's frame 2, a period before it). Found in review."""
+    phases = (0.0075, 0.0005, 0.0045, 0.0)
+    streams = camera_streams(6, jitter_s=0.0, seed=0, offsets_s=phases, missing={("cam3", 2), ("cam2", 3)})
+    arrivals = sorted(((cam, t, k) for cam in CAMERAS for t, k in streams[cam]), key=lambda m: m[1])
+    kept = ApproximateTimeSync(CAMERAS, **camera_sync_settings(1 / PERIOD))
+    tightest = ApproximateTimeSync(CAMERAS, **{**camera_sync_settings(1 / PERIOD), "keep_grouping_s": 0.0})
+    assert [b.items for b in run(kept, arrivals)] == [b.items for b in run(tightest, arrivals)]
+    assert [b.items for b in run(ApproximateTimeSync(CAMERAS, **camera_sync_settings(1 / PERIOD)), arrivals)][2] == \
+        (2, 3, 2, 3)
 
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 10_000))
 @example(seed=2458)  # a camera's next frame, stamped before the pivot, ties the bundle's spread (found 2026-11-24)
-@pytest.mark.parametrize("keep_grouping_s", [0.0, 0.004])
-def test_output_depends_only_on_timestamps_not_on_arrival_order(seed, keep_grouping_s):
-    streams = camera_streams(40, jitter_s=0.008, seed=seed)
+@pytest.mark.parametrize("jitter_s, settings", [
+    (0.008, {"max_spread_s": 0.03}),
+    (0.008, {"max_spread_s": 0.03, "keep_grouping_s": 0.004}),
+    # the nodes' settings: min_period_s (half a period) bounds the frames to come; 4 ms of jitter keeps to it
+    (0.004, {k: v for k, v in camera_sync_settings(1 / PERIOD).items() if k != "queue_size"}),
+])
+def test_output_depends_only_on_timestamps_not_on_arrival_order(seed, jitter_s, settings):
+    """Within the module's assumptions: each camera keeps to `min_period_s`, and no queue overflows."""
+    streams = camera_streams(40, jitter_s=jitter_s, seed=seed)
     results = []
     for order_seed in (seed, seed + 1):
-        sync = ApproximateTimeSync(CAMERAS, max_spread_s=0.03, queue_size=100, keep_grouping_s=keep_grouping_s)
+        sync = ApproximateTimeSync(CAMERAS, queue_size=100, **settings)
         results.append([(b.stamps, b.items) for b in run(sync, interleave(streams, np.random.default_rng(order_seed)))])
     assert results[0] == results[1]
 
