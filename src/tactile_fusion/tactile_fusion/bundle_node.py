@@ -13,6 +13,11 @@ more than two frame periods (a bag replay that loops, a clock set back, a restar
 synchroniser start over from the new stamps, with a warning; without that, every later image would be dropped as
 out of order until the stamps passed the old ones again.
 
+A camera whose frame rate does not fit the synchronisation settings, whose defaults follow the sensor description's
+frame rate (a camera node run at its own `rate_hz`, a camera that cannot keep up), is named once with its rate, what
+goes wrong and the remedy (`camera_rates`): before, it showed only as cameras lost and back with every frame, or as
+`too_wide` drops.
+
 An image whose stamp no bundle can carry (`ros_time.is_ros_time`: a negative `sec`, legal in a message, or one past
 2**31 s) is dropped before it reaches the synchroniser, counted as `bad_stamp` and logged every `DROP_LOG_PERIOD_S` at
 most; it does not count as a sign of life of its camera, so a camera that sends only such images is left out.
@@ -33,6 +38,7 @@ from tactile_conversions.parameters import period_s, positive_float, sensor_desc
 from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
+from tactile_fusion.camera_rates import CameraPeriods, SyncSettings, period_misfits
 from tactile_msgs.msg import ImageBundle
 
 #: While the synchroniser drops images, what it dropped is logged at once and then at most this often (seconds).
@@ -59,6 +65,10 @@ class BundleNode(Node):
         self.lost_cameras: set[str] = set()
         self.sync: ApproximateTimeSync[Image] | None = None
         self.sequence = 0
+        self.camera_periods = CameraPeriods()
+        self.sync_settings = SyncSettings(len(self.sensor.camera_ids), self.max_spread_s, self.min_period_s,
+                                          self.camera_timeout_s)
+        self.named_rates: set[str] = set()  # cameras whose rate was named in the log
         for camera_id in self.sensor.camera_ids:
             self.create_subscription(Image, camera_topic(camera_id),
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
@@ -84,6 +94,7 @@ class BundleNode(Node):
         if not is_ros_time(stamp_s):
             self.drop_bad_stamp(camera_id, msg)
             return
+        self.check_rate(camera_id, stamp_s)
         now = self.now_s()
         if not self.live_cameras:
             # First image since start-up (or since every camera fell silent): give every camera one timeout to
@@ -107,6 +118,20 @@ class BundleNode(Node):
             f"{camera_id}: dropped an image stamped sec={stamp.sec} nanosec={stamp.nanosec}: a bundle's stamp must "
             f"lie in [0, 2**31) s; {self.dropped.bad_stamp} such image(s) since start",
             throttle_duration_sec=DROP_LOG_PERIOD_S)
+
+    def check_rate(self, camera_id: str, stamp_s: float) -> None:
+        """Name a camera, once, whose frame period does not fit this node's synchronisation settings (camera_rates)."""
+        self.camera_periods.add(camera_id, stamp_s)
+        period = self.camera_periods.period_s(camera_id)
+        if period is None or camera_id in self.named_rates:
+            return
+        misfits = period_misfits(period, self.sync_settings)
+        if misfits:
+            self.named_rates.add(camera_id)
+            self.get_logger().warning(
+                f"{camera_id} captures {1 / period:.3g} frames a second by its stamps, the sensor description says "
+                f"{self.sensor.frame_rate_hz:g} Hz: {'; '.join(misfits)}. Set frame_rate_hz in the sensor description "
+                "to the cameras' rate (this node's defaults follow it), or set those parameters")
 
     def check_cameras(self) -> None:
         """Rebuild the synchroniser when the set of cameras that send images changes."""

@@ -103,3 +103,23 @@ def test_a_camera_timeout_longer_than_a_day_is_refused_naming_the_parameter(monk
                 BundleNode()
     finally:
         rclpy.try_shutdown()
+
+
+def test_cameras_slower_than_the_sensor_description_are_named_once_with_the_remedy(bundler, capfd):
+    """Cameras at 10 Hz where the description says 40 Hz: before, the only signs were too_wide drops, or cameras lost
+    and back with every frame."""
+    node, bundles = bundler()
+    send(node, [100.0 + k * 0.1 for k in range(8)])
+    err = capfd.readouterr().err
+    for camera_id in CAMERAS:
+        assert err.count(f"{camera_id} captures 10 frames a second by its stamps, the sensor description says 40 Hz: "
+                         "4 cameras without a common trigger capture up to 0.075 s apart") == 1
+    assert "Set frame_rate_hz in the sensor description" in err
+    assert "left out of the bundles" not in err  # 0.1 s is within camera_timeout_s
+
+
+def test_cameras_at_the_sensor_descriptions_rate_are_not_named(bundler, capfd):
+    node, bundles = bundler()
+    send(node, [100.0 + k * PERIOD_S + 0.002 * (k % 2) for k in range(12)])  # with jitter
+    assert spin_until(node, lambda: len(bundles) >= 10, 10.0)
+    assert "frames a second by its stamps" not in capfd.readouterr().err
