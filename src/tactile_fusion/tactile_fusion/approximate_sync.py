@@ -265,6 +265,11 @@ class ApproximateTimeSync(Generic[Item]):
         ("before", distance b_i) or its first message after it ("after", distance a_i); anything else is
         dominated. The spread of a choice is max(b over "before" picks) + max(a over "after" picks), so trying
         every threshold B on the before-distances covers all undominated bundles.
+
+        Of equally tight bundles (stamps on a grid tie exactly) the one of the largest threshold is taken, the most
+        messages before the pivot. The streams picking "after" only shrink as the threshold grows, so a tie still
+        missing a message lies below every known one and would lose anyway: which of them has arrived does not
+        matter. Taking the first known tie let the arrival order choose (found in review).
         """
         if not options:  # a single stream
             return 0.0, {}, 0.0
@@ -280,7 +285,7 @@ class ApproximateTimeSync(Generic[Item]):
                     known = known and after is not None
             spread = threshold + after_max
             lower_bound = min(lower_bound, spread)
-            if known and spread < best:
+            if known and spread <= best:
                 best, best_picks = spread, picks
         return best, best_picks, lower_bound
 
