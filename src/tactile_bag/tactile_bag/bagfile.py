@@ -33,9 +33,13 @@ BAG_VERSION = 9
 #: What rosbags' readers raise on a damaged bag (bad magic, truncated chunk, lengths out of range, bad YAML), on a
 #: zstd-compressed one (rosbag2's FILE or MESSAGE compression, zstd MCAP chunks) whose compressed bytes are cut short
 #: (EOFError) or are not zstd (ZstdError, e.g. metadata that claims zstd over a plain .mcap), and on an lz4 MCAP chunk
-#: whose bytes are not an lz4 frame (the lz4 package raises a plain RuntimeError).
+#: whose bytes are not an lz4 frame (the lz4 package raises a plain RuntimeError), and on a record length damaged
+#: into one too large to allocate (MemoryError: one byte of the MCAP header record's length set to 0x7f).
 DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error, EOFError,
-                      ZstdError, RuntimeError)
+                      ZstdError, RuntimeError, MemoryError)
+#: What rosbags' Reader.open raises on a metadata.yaml whose fields are of the wrong kind: a number quoted (a
+#: TypeError inside rosbags), a number as a type name (AttributeError).
+METADATA_KIND_ERRORS = (TypeError, AttributeError)
 
 
 class BagError(ValueError):
@@ -140,10 +144,23 @@ class BagReader:
         try:
             self._reader = Reader(self.path)
             self._reader.open()
+        except METADATA_KIND_ERRORS as exc:
+            raise BagError(f"bag {self.path} cannot be opened: a field of its metadata.yaml is of the wrong kind "
+                           f"({exc}): a number quoted, or a name given as a number? Compare it with the metadata.yaml "
+                           "of a bag that `tactile-bag record` wrote") from exc
         except DAMAGED_BAG_ERRORS as exc:
-            raise BagError(f"bag {self.path} cannot be opened ({exc}); expected a rosbag2 directory with "
+            reason = "a record length beyond any memory" if isinstance(exc, MemoryError) else exc
+            raise BagError(f"bag {self.path} cannot be opened ({reason}); expected a rosbag2 directory with "
                            "metadata.yaml and its .mcap or .db3 file, complete (a recorder killed with SIGKILL "
                            "leaves an unreadable file)") from exc
+        for connection in self._reader.connections:
+            if not (isinstance(connection.topic, str) and isinstance(connection.msgtype, str)
+                    and type(connection.msgcount) is int):
+                self._reader.close()
+                raise BagError(f"bag {self.path}: its metadata.yaml gives topic {connection.topic!r} the type "
+                               f"{connection.msgtype!r} and message count {connection.msgcount!r}: expected a name, a "
+                               "type name and a whole number; compare it with the metadata.yaml of a bag that "
+                               "`tactile-bag record` wrote")
         self.topics = {c.topic: c.msgtype for c in self._reader.connections}
         self._checked_topics: set[str] = set()
         self.counts = dict.fromkeys(self.topics, 0)
@@ -170,6 +187,8 @@ class BagReader:
             for connection, time_ns, raw in self._reader.messages(connections=connections):
                 yield connection.topic, connection.msgtype, time_ns, raw
         except DAMAGED_BAG_ERRORS as exc:
+            if isinstance(exc, MemoryError):
+                raise BagError(f"bag {self.path} is damaged: a record length beyond any memory") from exc
             if "checksum mismatch" in str(exc).lower():  # rosbags: "Chunk checksum mismatch."
                 raise BagError(f"bag {self.path} is damaged: a chunk's CRC-32 does not match its data ({exc}): bytes "
                                "of the file changed after it was written; take it from a copy") from exc

@@ -292,7 +292,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
             reader.skipped[reason] = bag.counts[GROUND_TRUTH_TOPIC]
             truth_stamps, truth = no_ground_truth(sensor)
         frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
-        bundles = 0
+        bundles = after_reference = 0
         stamps, estimates, camera_ok, off_reference = [], [], [], []
         for frame in frames:
             bundles += 1
@@ -301,6 +301,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
             result = live.add(frame.images, frame.camera_ok)
             if result.for_reference:
                 continue
+            after_reference += 1
             if result.forces is None:
                 reader.skip("bundle without any usable image")
                 continue
@@ -315,6 +316,9 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
                        f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles "
                        f"(the reference does without a camera that has no usable image after {reference.patience} "
                        "bundles)")
+    if not after_reference:
+        raise BagError(f"bag {path}: the reference frames took every complete bundle of its {bundles}, none is left to "
+                       "estimate; record longer, or lower --reference-bundles")
     stamps_s = np.asarray(stamps, dtype=np.float64)
     return BagEvaluation(
         bag=str(path), source=source, camera_ids=sensor.camera_ids, bundles=bundles,

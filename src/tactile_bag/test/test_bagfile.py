@@ -397,6 +397,39 @@ def test_damaged_metadata(sim_bag, tmp_path):
         BagReader(bag)
 
 
+def test_a_record_length_too_large_to_allocate_is_refused(sim_bag, tmp_path):
+    """One byte of the MCAP header record's length set to 0x7f: rosbags tried to read 2**62 bytes, and the MemoryError
+    ended tactile-bag in a traceback (found in review)."""
+    bag = copy_bag(sim_bag, tmp_path / "long_record")
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    data[16] = 0x7F  # after the 8-byte magic and the opcode, the top byte of the first record's 8-byte length
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r"cannot be opened \(a record length beyond any memory\)"):
+        BagReader(bag)
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [
+    # rosbags itself fails on these: a quoted number (TypeError), a number as a type name (AttributeError)
+    (r"nanoseconds: (\d+)", r"nanoseconds: '\1'", "a field of its metadata.yaml is of the wrong kind"),
+    # these rosbags takes, and the reader failed later on them
+    (r"- message_count: (\d+)", r"- message_count: '\1'", "message count '"),  # a topic's
+    (r"name: /tactile/ground_truth/force_distribution", "name: 5", "gives topic 5 the type"),
+    (r"type: tactile_msgs/msg/ForceDistribution", "type: 5", "the type 5 and"),
+])
+def test_metadata_fields_of_the_wrong_kind_are_refused_naming_the_file(sim_bag, tmp_path, old, new, message):
+    """A hand-edited metadata.yaml ended tactile-bag eval and play in a TypeError or AttributeError traceback (found in
+    review)."""
+    bag = copy_bag(sim_bag, tmp_path / "edited")
+    metadata = bag / "metadata.yaml"
+    edited = re.sub(old, new, metadata.read_text(), count=1)
+    assert edited != metadata.read_text()
+    metadata.write_text(edited)
+    with pytest.raises(BagError, match=re.escape(message)) as refused:
+        BagReader(bag)
+    assert "metadata.yaml" in str(refused.value)
+
+
 def test_a_topic_recorded_with_another_definition_of_its_type_is_refused(tmp_path):
     """A bag recorded with an older tactile_msgs (here: ForceDistribution without missing_camera_ids) would be
     decoded as the installed type: refused, naming the topic and both type hashes. Each topic is checked on its own,

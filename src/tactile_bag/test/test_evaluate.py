@@ -255,6 +255,15 @@ def test_too_few_complete_bundles_for_the_reference(sim_bag, sensor, predictor):
         evaluate_bag(sim_bag, sensor, predictor, reference_bundles=100)
 
 
+def test_a_bag_whose_bundles_all_go_into_the_reference_is_refused(sim_bag, sensor, predictor):
+    """Exactly as many bundles as the reference takes: eval reported 0 estimates and exit status 0 (found in review)."""
+    bundles = evaluate_bag(sim_bag, sensor, predictor, reference_bundles=1).bundles
+    with pytest.raises(BagError, match=f"the reference frames took every complete bundle of its {bundles}, none is "
+                                       "left to estimate; record longer, or lower --reference-bundles"):
+        evaluate_bag(sim_bag, sensor, predictor, reference_bundles=bundles)
+    assert len(evaluate_bag(sim_bag, sensor, predictor, reference_bundles=bundles - 1).estimates_n) == 1
+
+
 def test_cli_eval_json(sim_bag, model_dir, capsys):
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--json",
                  "--reference-bundles", "5"]) == 0
