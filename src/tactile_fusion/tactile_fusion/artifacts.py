@@ -206,7 +206,12 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")
     try:
-        state = torch.load(state_path, map_location="cpu", weights_only=True)
+        try:
+            state = torch.load(state_path, map_location="cpu", weights_only=True)
+        except Exception as exc:
+            # torch's safe unpickler raises whatever the bytes lead it to (KeyError, IndexError, struct.error, ...
+            # for a file of text: found in review); each is a file that cannot be read.
+            raise RuntimeError(f"{type(exc).__name__}: {one_line(exc)}") from exc
         if not isinstance(state, Mapping):  # load_state_dict's TypeError would not say which file
             raise RuntimeError(f"it holds a {type(state).__name__}, not a state dict")
         state = dict(state)

@@ -22,6 +22,7 @@ import torch
 from tqdm import tqdm
 
 from tactile_description import FORCE_COMPONENTS
+from tactile_description.command_line import one_line
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_fusion.data import FrameDataError, FrameSet, check_finite_targets, forces_sha256
 from tactile_fusion.fz_threshold import fit_threshold_and_fusion
@@ -221,8 +222,8 @@ class BatchSource(Protocol):
 
 
 class CheckpointMismatchError(ValueError):
-    """A checkpoint to resume from that another model or other training settings wrote (the message says what to
-    do)."""
+    """A checkpoint to resume from that another model or other training settings wrote, or that cannot be read (the
+    message says what to do)."""
 
 
 @dataclass
@@ -503,7 +504,14 @@ def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
 
 def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig,
                      compared: dict[str, str] | None, data: dict | None) -> dict:
-    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # the unpickler raises whatever a damaged file's bytes lead it to (found in review)
+        raise CheckpointMismatchError(f"checkpoint {path} cannot be read ({type(exc).__name__}: {one_line(exc)}): it "
+                                      "is damaged; delete it to train its phase afresh") from exc
+    if not isinstance(checkpoint, dict):
+        raise CheckpointMismatchError(f"checkpoint {path} holds a {type(checkpoint).__name__}, not a checkpoint of "
+                                      "tactile-fusion train; delete it to train its phase afresh")
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
         raise CheckpointMismatchError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, "

@@ -225,6 +225,10 @@ DAMAGED = [
      r"model.pt holds the weights of another model than its model.json describes \(cols \d+ in the weights, 5 in "),
     (STATE_DICT, "torch", lambda p: p.write_bytes(p.read_bytes()[:300]), "model.pt cannot be read"),
     (STATE_DICT, "torch", lambda p: p.write_bytes(b"not a state dict"), "model.pt cannot be read"),
+    # Bytes on which torch's safe unpickler raised KeyError, IndexError, struct.error: tracebacks (found in review)
+    (STATE_DICT, "torch", lambda p: p.write_bytes(b"hello world"), r"model.pt cannot be read .*\(KeyError: "),
+    (STATE_DICT, "torch", lambda p: p.write_bytes(b"(ello world"), r"model.pt cannot be read .*\(IndexError: "),
+    (STATE_DICT, "torch", lambda p: p.write_bytes(b"J\x00"), r"model.pt cannot be read .*\(error: "),
     (ONNX_FILES["fp32"], "onnxruntime", lambda p: p.write_bytes(p.read_bytes()[:300]),
      r"model.onnx cannot be loaded by ONNX Runtime .*INVALID_PROTOBUF.*re-export it \(tactile-fusion export"),
 ]

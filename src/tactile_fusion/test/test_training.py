@@ -9,7 +9,15 @@ import torch
 from tactile_fusion.data import split_indices
 from tactile_fusion.model import force_scale_from_targets
 from tactile_fusion.sources import ImageSource
-from tactile_fusion.training import TrainConfig, build_model, epoch_batches, fit, native_bf16, rmse_loss
+from tactile_fusion.training import (
+    CheckpointMismatchError,
+    TrainConfig,
+    build_model,
+    epoch_batches,
+    fit,
+    native_bf16,
+    rmse_loss,
+)
 
 
 def sources(frames):
@@ -166,6 +174,22 @@ def test_a_checkpoint_of_a_model_estimating_other_components_is_refused_saying_w
         fit(fz, train, val, config, checkpoint_path=checkpoint, resume=True)
     _, result = trained(frames, tiny_config, config, checkpoint_path=checkpoint, resume=True)
     assert result.epochs_run == 2
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    (b"hello world", r"cannot be read \(UnpicklingError: .*\): it is damaged; delete it"),  # a traceback before
+    (None, r"holds a list, not a checkpoint of tactile-fusion train; delete it"),
+])
+def test_a_damaged_checkpoint_is_refused_saying_what_to_do(frames, tiny_config, tmp_path, content, message):
+    checkpoint = tmp_path / "checkpoint.pt"
+    if content is None:
+        torch.save([1, 2], checkpoint)
+    else:
+        checkpoint.write_bytes(content)
+    train, val, scale = sources(frames)
+    model = build_model(tiny_config, frames.camera_ids, 3, 4, scale, 0)
+    with pytest.raises(CheckpointMismatchError, match=message):
+        fit(model, train, val, TrainConfig(max_epochs=1, batch_size=8), checkpoint_path=checkpoint, resume=True)
 
 
 def test_resuming_a_model_with_another_activation_is_refused(frames, tiny_config, tmp_path):
