@@ -91,9 +91,13 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (BundleNode, {"queue_size": "10.0"}, "parameter queue_size must be a whole number >= 1, got 10.0"),
     (CameraNode, {"rate_hz": ".nan"}, "tactile_camera: parameter rate_hz must be a finite number > 0, got nan"),
     (CameraNode, {"reopen_period_s": "0"}, "parameter reopen_period_s must be a finite number > 0, got 0"),
-    (CameraNode, {"source": "-1"}, "parameter source must be a device index (an integer >= 0), a device path or a "
-                                   "video file, got -1"),
+    (CameraNode, {"source": "-1"}, "parameter source must be a device index (an integer from 0 to 2147483647), a "
+                                   "device path or a video file, got -1"),
     (CameraNode, {"source": "''"}, "parameter source must be a device index"),
+    # OpenCV's index is a C int, and '²'.isdigit(): cv2.error and ValueError tracebacks (found in review)
+    (CameraNode, {"source": "4294967296"}, "parameter source must be a device index (an integer from 0 to "
+                                           "2147483647), a device path or a video file, got 4294967296"),
+    (CameraNode, {"source": "'4294967296'"}, "got 4294967296"),
     (SimCameraNode, {"stamp_jitter_s": ".nan"}, "parameter stamp_jitter_s must be a finite number >= 0, got nan"),
     (SimCameraNode, {"rate_hz": ".nan"}, "tactile_sim_cameras: parameter rate_hz must be a finite number > 0"),
     # a timer of a period beyond rcl's reach failed with a pybind TypeError naming no parameter
@@ -158,6 +162,29 @@ def test_a_node_refusing_a_parameter_says_why_in_one_line_and_exits_with_status_
     run = subprocess.run([executable, "--ros-args", "-p", f"sensor_config:={CONFIG}", "-p", parameter],
                          capture_output=True, text=True, timeout=60)
     assert (run.returncode, run.stderr) == (2, line + "\n"), run.stderr
+
+
+@pytest.mark.parametrize("problem", ["particles_in_the_rigid_base", "a_scene_that_fails_while_it_plays"])
+def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(ros_domain, tmp_path, problem):
+    """A sensor description that only the simulator refuses, and a scene that fails only once its frames are made
+    (no room for four presses 45 mm apart, after three frames at rest), ended sim_camera_node in a traceback with
+    status 1, the second with the graph running (found in review)."""
+    if problem == "particles_in_the_rigid_base":
+        config = tmp_path / "sensor.yaml"
+        config.write_text(re.sub(r"(?m)^  layer: particle_layer$", "  layer: transparent_base",
+                                 default_sensor_path().read_text()))
+        parameters, line = ["sensor_config:=" + str(config)], "parameter sensor_config: "
+    else:
+        scene = tmp_path / "crowded.yaml"
+        scene.write_text("name: crowded\nseed: 1\nindenter: {shape: sphere, diameter_mm: 4}\ntimeline:\n"
+                         "  - rest: {frames: 3}\n  - random_presses: {frames: 10, contacts_per_frame: 4, "
+                         "min_separation_mm: 45.0, depth_mm: [0.3, 0.5]}\n")
+        parameters, line = ["sensor_config:=" + CONFIG, "scene:=" + str(scene)], "parameter scene: "
+    run = subprocess.run(["sim_camera_node", "--ros-args", *itertools.chain(*(["-p", p] for p in parameters))],
+                         capture_output=True, text=True, timeout=60)
+    last = run.stderr.strip().splitlines()[-1]
+    assert run.returncode == 2 and last.startswith("tactile_sim_cameras: " + line), run.stderr
+    assert "Traceback" not in run.stderr
 
 
 def wait_for_log(path, text: str, timeout_s: float) -> str:

@@ -20,6 +20,7 @@ before it is decoded, not before read() waits for it.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -41,6 +42,9 @@ from tactile_conversions.parameters import (
 from tactile_conversions.topics import camera_topic
 from tactile_description.imaging import FrameError, crop_and_downsample
 from tactile_description.value_checks import is_whole_number
+
+#: OpenCV takes a device index as a C int: 2**32 ended the node in cv2.error at its first frame (found in review).
+MAX_DEVICE_INDEX = 2**31 - 1
 
 
 def is_video_file(source: int | str) -> bool:
@@ -83,12 +87,14 @@ class CameraNode(Node):
         `-p source:=2` gives the one, camera_sources.yaml's `cam0: 2` the other) or a path (a device or a video
         file)."""
         value = self.declare_parameter("source", "0", DYNAMIC).value
-        if isinstance(value, str) and value.isdigit():
-            return int(value)
-        if is_whole_number(value, 0) or (isinstance(value, str) and value):
+        if isinstance(value, str) and re.fullmatch("[0-9]+", value):  # not isdigit(): '²' is a digit to it
+            value = int(value)
+        if is_whole_number(value, 0) and value <= MAX_DEVICE_INDEX:
             return value
-        raise ParameterError(f"{self.get_name()}: parameter source must be a device index (an integer >= 0), a device "
-                             f"path or a video file, got {value!r}")
+        if isinstance(value, str) and value:
+            return value
+        raise ParameterError(f"{self.get_name()}: parameter source must be a device index (an integer from 0 to "
+                             f"{MAX_DEVICE_INDEX}), a device path or a video file, got {value!r}")
 
     def destroy_node(self) -> None:
         if self.capture is not None:

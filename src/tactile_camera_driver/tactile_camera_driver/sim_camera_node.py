@@ -31,7 +31,7 @@ from tactile_conversions.parameters import (
 )
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
-from tactile_description import FORCE_COMPONENTS
+from tactile_description import FORCE_COMPONENTS, SensorConfigError
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import SceneError, Simulator, load_scene
 
@@ -47,7 +47,8 @@ class SimCameraNode(Node):
         self.sensor = sensor_description(self)
         frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
         self.stamp_jitter_s = self.declare_stamp_jitter(frame_rate_hz)
-        self.simulator = Simulator(self.sensor)
+        with refused_as(self, "parameter sensor_config", SensorConfigError):
+            self.simulator = Simulator(self.sensor)  # refuses what only the simulator needs (where the particles are)
         with refused_as(self, "parameter scene", SceneError):
             self.scene = load_scene(self.scene_name, self.sensor)
         self.frames = self.simulator.stream(self.scene)
@@ -77,15 +78,18 @@ class SimCameraNode(Node):
         return jitter_s
 
     def publish_frame(self) -> None:
-        frame = next(self.frames, None)
-        if frame is None:
-            if not self.loop:
-                self.get_logger().info(f"scene {self.scene_name!r} ended ({len(self.scene)} frames; loop false): "
-                                       "publishing nothing more")
-                self.timer.cancel()
-                return
-            self.frames = self.simulator.stream(self.scene)
-            frame = next(self.frames)
+        # A scene can fail only once its frames are made (random presses with no room for the separation asked for):
+        # that ends the node as a scene refused at start-up does, in one line (run_node), not in a traceback.
+        with refused_as(self, "parameter scene", SceneError):
+            frame = next(self.frames, None)
+            if frame is None:
+                if not self.loop:
+                    self.get_logger().info(f"scene {self.scene_name!r} ended ({len(self.scene)} frames; loop false): "
+                                           "publishing nothing more")
+                    self.timer.cancel()
+                    return
+                self.frames = self.simulator.stream(self.scene)
+                frame = next(self.frames)
         capture_s = self.get_clock().now().nanoseconds * 1e-9
         for i, camera_id in enumerate(self.sensor.camera_ids):
             if not frame.camera_ok[i]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +41,10 @@ MAX_PARTICLES = 1_000_000
 #: camera nodes take at most 1 kHz (tactile_conversions.parameters.MAX_RATE_HZ), where a higher rate read from the
 #: description was refused as if the user had set their `rate_hz`.
 MAX_FRAME_RATE_HZ = 1000.0
+
+#: A camera id names the camera's topic (/tactile/<id>/image), node and frame: a ROS name token, as rcl validates
+#: one. `cam-0`, `cam.0` or a YAML number `0` ended every camera node in a traceback (found in review).
+CAMERA_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
 class SensorConfigError(ValueError):
@@ -286,7 +291,12 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     cameras = []
     for i, node in enumerate(unit_nodes):
         f = _fields(node, f"{source}.cameras.units[{i}]")
-        cameras.append(CameraSpec(camera_id=str(f.raw("id", required=True)),
+        camera_id = f.raw("id", required=True)
+        if not (isinstance(camera_id, str) and CAMERA_ID.fullmatch(camera_id)):
+            raise SensorConfigError(f"{source}.cameras.units[{i}]: id {camera_id!r} cannot name the camera's ROS topic "
+                                    f"(/tactile/<id>/image): use letters, digits and underscores, not starting with a "
+                                    f"digit, e.g. cam{i}")
+        cameras.append(CameraSpec(camera_id=camera_id,
                                   position_m=tuple(v * MM for v in f.numbers("position_mm", 3)),
                                   yaw_rad=math.radians(f.number("yaw_deg")), lens=lens, capture_size=capture_size,
                                   crop=crop, output_size=output_size))

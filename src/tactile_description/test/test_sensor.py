@@ -86,6 +86,12 @@ def _broken(tmp_path, edit):
     (lambda r: r["particles"].update(diameter_um=[180, 150]), "diameter_um must be \\[min, max\\]"),
     (lambda r: r["particles"].update(layer="nowhere"), "no gel layer named 'nowhere'"),
     (lambda r: r["cameras"]["units"][1].update(id="cam0"), "camera ids must be unique"),
+    # not a ROS name token: every camera node ended in InvalidTopicNameException (found in review)
+    (lambda r: r["cameras"]["units"][1].update(id="cam-1"), r"units\[1\]: id 'cam-1' cannot name the camera's ROS "
+                                                            r"topic \(/tactile/<id>/image\): use letters, digits and"),
+    (lambda r: r["cameras"]["units"][2].update(id="cam.2"), r"id 'cam.2' cannot name"),
+    (lambda r: r["cameras"]["units"][0].update(id=0), r"units\[0\]: id 0 cannot name .*, e.g. cam0"),
+    (lambda r: r["cameras"]["units"][3].update(id="3d"), r"id '3d' cannot name"),
     (lambda r: r["cameras"]["units"][0].update(position_mm=[10, 10, -2]), "inside the gel"),
     (lambda r: r["cameras"]["crop"].update(width=400), "does not fit"),
     (lambda r: r["cameras"].update(units=[]), "at least one camera"),
