@@ -144,22 +144,24 @@ class FusionNode(Node):
         """Capture the reference or publish the estimate of one bundle."""
         images, camera_ok, problems = frame_from_images(bundle.camera_ids, bundle.images, self.sensor.camera_ids,
                                                         self.image_shape)
-        if problems:
-            self.bundles_with_problems += 1
-            self.get_logger().error(
-                f"bundle {bundle.sequence}: " + "; ".join(f"{reason} ({detail})" for reason, detail in problems)
-                + f" ({self.bundles_with_problems} bundle(s) with unusable images since start)",
-                throttle_duration_sec=5.0)
         if is_malformed_bundle(bundle.camera_ids, bundle.images):
+            self.report_problems(bundle.sequence, problems)
             return  # neither estimated nor counted towards the reference frames
         try:
             result = self.live.add(images, camera_ok)
         except (InputError, FloatingPointError) as exc:
+            self.report_problems(bundle.sequence, problems)
             self.get_logger().error(f"no estimate for this bundle: {exc}", throttle_duration_sec=5.0)
             return
-        if result.for_reference:
+        if result.for_reference:  # report_reference names the cameras missing meanwhile
+            self.report_problems(bundle.sequence, problems)
             self.report_reference(result)
             return
+        absent = [c for c in self.sensor.camera_ids if c not in bundle.camera_ids]
+        if absent:  # an empty bundle too, of which nothing is published
+            problems.append((f"no image of {', '.join(absent)}", "missing from the bundle: the bundle node leaves out "
+                             "a camera that fell silent (its log says since when)"))
+        self.report_problems(bundle.sequence, problems)
         self.report_reference_match(result.match_changed)
         self.report_frozen(result.frozen_changed)
         if result.unreferenced.any():
@@ -169,6 +171,16 @@ class FusionNode(Node):
                 f"{self.capture_command()}", throttle_duration_sec=10.0)
         if result.forces is not None:
             self.publish(bundle, result)
+
+    def report_problems(self, sequence: int, problems: list[tuple[str, str]]) -> None:
+        """Every problem of one bundle in one line, so that each broken camera is named (every 5 s at most)."""
+        if not problems:
+            return
+        self.bundles_with_problems += 1
+        self.get_logger().error(
+            f"bundle {sequence}: " + "; ".join(f"{reason} ({detail})" for reason, detail in problems)
+            + f" ({self.bundles_with_problems} bundle(s) with missing or unusable images since start)",
+            throttle_duration_sec=5.0)
 
     def publish(self, bundle: ImageBundle, result: FrameResult) -> None:
         """The estimate of one bundle on the force, wrench and (at their rate) marker topics."""

@@ -116,8 +116,26 @@ def test_every_broken_camera_of_a_bundle_is_named_in_one_line(fusion, press_fram
     assert spin_until(node, lambda: len(estimates) == 1, 10.0)
     lines = [line for line in capfd.readouterr().err.splitlines() if "bundle 2:" in line]
     assert len(lines) == 1 and "unreadable image of cam1" in lines[0] and "cam3 image of 4 x 4 pixels" in lines[0]
-    assert "(1 bundle(s) with unusable images since start)" in lines[0]
+    assert "(1 bundle(s) with missing or unusable images since start)" in lines[0]
     assert list(estimates[0].missing_camera_ids) == ["cam1", "cam3"]
+
+
+@pytest.mark.parametrize(("cameras", "named", "published"), [
+    (("cam0", "cam2", "cam3"), "cam1", 1),
+    ((), "cam0, cam1, cam2, cam3", 0),  # an empty bundle: nothing to publish
+])
+def test_cameras_missing_from_a_bundle_are_named(fusion, press_frames, capfd, cameras, named, published):
+    """After the reference, a bundle without cam1 was published listing it as missing, and of an empty bundle nothing
+    was published, both without a word in the log (found in review)."""
+    node, estimates = fusion
+    for sequence in range(2):
+        node.on_bundle(bundle(press_frames[sequence], sequence))
+    node.on_bundle(bundle(press_frames[2], 2, cameras))
+    spin_until(node, lambda: len(estimates) == published, 2.0)
+    assert len(estimates) == published and all(list(e.missing_camera_ids) == [named] for e in estimates)
+    assert f"bundle 2: no image of {named} (missing from the bundle: the bundle node leaves out a camera that fell " \
+           "silent (its log says since when)) (1 bundle(s) with missing or unusable images since start)" \
+           in capfd.readouterr().err
 
 
 def test_a_malformed_bundle_is_skipped_and_the_node_goes_on(fusion, press_frames, capfd):
