@@ -12,6 +12,11 @@ ended and publishes nothing more, but keeps running (as sim_camera_node does at 
 launch file does not take the end of a recording for a failure. Frames of the wrong size are dropped with an error
 naming the camera and the expected size.
 
+A device is asked for the sensor description's capture size and the node's `rate_hz` (CAP_PROP_FRAME_WIDTH, _HEIGHT,
+_FPS; a camera that starts in its own default mode, 640 x 480 for many, had every frame dropped as the wrong size),
+and the node logs the mode it got, which a device may choose nearest to the one asked for (not tried on camera
+hardware: there is none here).
+
 Stamps (not tried on camera hardware): a device is opened with a buffer of one frame (CAP_PROP_BUFFERSIZE;
 OpenCV's V4L2 backend keeps 4 by default, so a node that fell behind would get frames up to 4 periods older than
 their stamps; backends without the property ignore it), and a frame is stamped as soon as grab() returns it,
@@ -53,12 +58,15 @@ def is_video_file(source: int | str) -> bool:
     return isinstance(source, str) and (Path(source).is_file() or "%" in source)
 
 
-def open_source(source: int | str) -> cv2.VideoCapture:
-    """A VideoCapture for a device index, a device path, a video file or an image sequence; a device keeps one frame
-    (module docstring)."""
+def open_source(source: int | str, capture_size: tuple[int, int], frame_rate_hz: float) -> cv2.VideoCapture:
+    """A VideoCapture for a device index, a device path, a video file or an image sequence. A device keeps one frame
+    and is asked for the sensor description's capture size and the node's frame rate (module docstring)."""
     capture = cv2.VideoCapture(source)
     if capture.isOpened() and not is_video_file(source):
         capture.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+        capture.set(cv2.CAP_PROP_FRAME_WIDTH, capture_size[0])
+        capture.set(cv2.CAP_PROP_FRAME_HEIGHT, capture_size[1])
+        capture.set(cv2.CAP_PROP_FPS, frame_rate_hz)
     return capture
 
 
@@ -75,12 +83,12 @@ class CameraNode(Node):
             raise ParameterError(f"{self.get_name()}: parameter camera_id must name a camera of the sensor description "
                                  f"({list(sensor.camera_ids)}), got {self.camera_id!r}")
         self.camera = sensor.cameras[sensor.camera_ids.index(self.camera_id)]
-        frame_rate_hz = rate_hz(self, "rate_hz", sensor.frame_rate_hz)
+        self.frame_rate_hz = rate_hz(self, "rate_hz", sensor.frame_rate_hz)
         self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
         self.next_open_s = 0.0
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
-        self.timer = self.create_timer(1.0 / frame_rate_hz, self.grab)
+        self.timer = self.create_timer(1.0 / self.frame_rate_hz, self.grab)
 
     def declare_source(self) -> int | str:
         """The `source` parameter as OpenCV takes it: a device index (an integer >= 0, or a string of digits:
@@ -109,25 +117,36 @@ class CameraNode(Node):
             return True
         if self.now_s() < self.next_open_s:
             return False
-        self.capture = open_source(self.source)
+        self.capture = open_source(self.source, self.camera.capture_size, self.frame_rate_hz)
         if not self.capture.isOpened():
+            # A try happens at a frame tick: every reopen_period_s, or every frame period where that is longer.
+            retry_s = max(self.reopen_period_s, 1.0 / self.frame_rate_hz)
             self.get_logger().error(f"{self.camera_id}: cannot open camera source {self.source!r}; retrying every "
-                                    f"{self.reopen_period_s:.1f} s", throttle_duration_sec=10.0)
+                                    f"{retry_s:.3g} s", throttle_duration_sec=10.0)
             self.capture = None
             self.next_open_s = self.now_s() + self.reopen_period_s
             return False
-        self.get_logger().info(f"{self.camera_id}: reading {self.source!r}")
+        self.get_logger().info(f"{self.camera_id}: reading {self.source!r}{self.device_mode()}")
         self.frames_since_rewind = 0
         return True
+
+    def device_mode(self) -> str:
+        """For a device, the size and rate it delivers, which it may have chosen nearest to those asked for."""
+        if is_video_file(self.source):
+            return ""
+        width, height = (int(self.capture.get(p)) for p in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT))
+        return (f" at {width} x {height} px, {self.capture.get(cv2.CAP_PROP_FPS):g} fps (asked for "
+                f"{self.camera.capture_size[0]} x {self.camera.capture_size[1]} px, {self.frame_rate_hz:g} fps)")
 
     def grab(self) -> None:
         if not self.ensure_open():
             return
-        grabbed = self.capture.grab()
-        stamp = self.get_clock().now().to_msg()  # the frame exists now; decoding it (retrieve) takes a while
-        ok, frame = self.capture.retrieve() if grabbed else (False, None)
-        if not ok:
-            self.on_no_frame()
+        frame, stamp = self.read_frame()
+        if frame is None and self.on_no_frame():  # a video file played again: its first frame in this tick
+            frame, stamp = self.read_frame()
+            if frame is None:
+                self.on_no_frame()
+        if frame is None:
             return
         try:
             image = crop_and_downsample(frame, self.camera)
@@ -136,26 +155,36 @@ class CameraNode(Node):
             return
         self.publisher.publish(mono8_to_msg(image, stamp, f"{self.camera_id}_optical"))
         self.frames_published += 1
-        self.frames_since_rewind += 1
 
-    def on_no_frame(self) -> None:
-        """A video file that ended is played again (`loop`) or ends the reading; any other source is reopened, and
-        so is a video file that gave no frame since it was opened or played again (one that OpenCV opens but cannot
-        decode: playing it again would be silent for ever)."""
+    def read_frame(self):
+        """(the next capture frame or None, its stamp). A frame is stamped when grab() returns it, before decoding."""
+        grabbed = self.capture.grab()
+        stamp = self.get_clock().now().to_msg()
+        ok, frame = self.capture.retrieve() if grabbed else (False, None)
+        if not ok:
+            return None, stamp
+        self.frames_since_rewind += 1  # of any size: a file of the wrong size is played again, not reopened
+        return frame, stamp
+
+    def on_no_frame(self) -> bool:
+        """A video file that ended is played again (`loop`; True) or ends the reading; any other source is reopened,
+        and so is a video file that gave no frame since it was opened or played again (one that OpenCV opens but
+        cannot decode: playing it again would be silent for ever)."""
         if is_video_file(self.source) and not self.loop:
             self.get_logger().info(f"{self.camera_id}: video file {self.source!r} ended ({self.frames_published} "
                                    "frames published; loop false): publishing nothing more")
             self.timer.cancel()
             self.capture.release()
             self.capture = None
-            return
+            return False
         if is_video_file(self.source) and self.frames_since_rewind and self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0):
             self.frames_since_rewind = 0
-            return  # played again from the start
+            return True  # played again from the start
         self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening")
         self.capture.release()
         self.capture = None
         self.next_open_s = self.now_s() + self.reopen_period_s
+        return False
 
 
 def main(args: list[str] | None = None) -> None:
