@@ -41,7 +41,7 @@ def cmd_record(args) -> int:
     init_ros()
     started = time.monotonic()
     try:
-        counts = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout, args.wait)
+        recording = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout, args.wait)
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             raise
@@ -51,12 +51,15 @@ def cmd_record(args) -> int:
         return 1
     finally:
         rclpy.try_shutdown()
+    counts = recording.counts
     total = sum(counts.values())
     silent = [t for t, n in counts.items() if not n]
     print(f"recorded {total} messages in {time.monotonic() - started:.1f} s into {args.out}: "
           + ", ".join(f"{t} {n}" for t, n in counts.items())
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
-    if not total:
+    if not total and recording.stopped:  # not "no message within --wait": that had not run out (found in review)
+        print("tactile-bag record: stopped before any message arrived", file=sys.stderr)
+    elif not total:
         print(f"tactile-bag record: no message within {args.wait:g} s: is the graph running, in this "
               "ROS_DOMAIN_ID?", file=sys.stderr)
     return 0 if total else 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
@@ -64,9 +65,15 @@ def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str]
     return {t: types[t] for t in topics}
 
 
+@dataclass(frozen=True)
+class Recording:
+    counts: dict[str, int]  # messages per topic
+    stopped: bool           # by SIGINT or SIGTERM, before its duration (or its wait for a first message) ran out
+
+
 def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], duration_s: float,
-           discovery_timeout_s: float = 2.0, wait_s: float = 10.0) -> dict[str, int]:
-    """Record `topics` into the new bag `out`; returns the messages per topic.
+           discovery_timeout_s: float = 2.0, wait_s: float = 10.0) -> Recording:
+    """Record `topics` into the new bag `out`; returns the messages per topic and whether a signal stopped it.
 
     Recording lasts `duration_s` from the first message received (DDS discovery can take a second or more on a
     loaded machine, and the graph may start after the recorder), stops earlier on SIGINT/SIGTERM, and gives up
@@ -93,7 +100,7 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
     with BagWriter(out) as bag:
         recorder = Recorder(bag, topic_types)
         give_up = time.monotonic() + wait_s
-        with until_stop_signal():
+        with until_stop_signal() as stop:
             try:
                 while True:
                     first = recorder.first_arrival_s
@@ -105,4 +112,4 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
                 recorder.destroy_node()
         with stop_signals_ignored():  # an impatient second Ctrl-C would leave the bag without its index: unreadable
             bag.close()
-        return dict(bag.counts)
+        return Recording(dict(bag.counts), stop.signalled)

@@ -169,6 +169,30 @@ def play_until_signal(args: list[str], stop: int) -> tuple[int, str, str, float]
         rclpy.try_shutdown()
 
 
+def test_record_stopped_before_any_message_says_so_not_that_none_came_in_time(tmp_path):
+    """No graph runs; a Ctrl-C 0.5 s into a wait of 30 s for the first message. It said "no message within 30 s: is
+    the graph running" (found in review)."""
+    rclpy.init()
+    probe = Node("record_signal_probe")
+    recorder = subprocess.Popen(["tactile-bag", "record", str(tmp_path / "bag"), "--duration", "5", "--wait", "30"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30.0
+        while not probe.count_subscribers("/tactile/cam0/image") and time.monotonic() < deadline:
+            time.sleep(0.05)  # subscribed: recording, waiting for a first message
+        time.sleep(0.5)
+        recorder.send_signal(signal.SIGINT)
+        out, err = recorder.communicate(timeout=30)
+    finally:
+        if recorder.poll() is None:
+            recorder.kill()
+            recorder.communicate()
+        probe.destroy_node()
+        rclpy.try_shutdown()
+    assert recorder.returncode == 1 and out.startswith("recorded 0 messages"), (out, err)
+    assert err.strip() == "tactile-bag record: stopped before any message arrived", err
+
+
 @pytest.mark.parametrize("duration_s, wait_s", [(math.nan, 1.0), (1.0, math.inf), (0.0, 1.0)])
 def test_record_itself_refuses_a_duration_or_wait_that_never_or_at_once_ends(tmp_path, duration_s, wait_s):
     with pytest.raises(ValueError, match="--duration and --wait must be finite numbers > 0 seconds"):

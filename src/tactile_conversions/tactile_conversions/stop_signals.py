@@ -42,12 +42,22 @@ def stopped_by_signal(error: BaseException) -> bool:
         isinstance(error, Exception) and (not rclpy.ok() or _interrupted.is_set()))
 
 
+class StopState:
+    """What `until_stop_signal` yields: `signalled` is True once a Ctrl-C or SIGTERM ended the block."""
+
+    def __init__(self) -> None:
+        self.signalled = False
+
+
 @contextlib.contextmanager
 def until_stop_signal():
     """Run the block until a Ctrl-C or SIGTERM stops it: that stop (`stopped_by_signal`) ends the block quietly, and
-    the code after it runs (a summary, a bag's close); any other error passes."""
+    the code after it runs (a summary, a bag's close), which can tell from the StopState yielded; any other error
+    passes."""
+    state = StopState()
     try:
-        yield
+        yield state
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             raise
+        state.signalled = True

@@ -30,14 +30,18 @@ def test_an_error_is_a_stop_only_once_rclpy_is_shut_down(context):
 
 def test_a_block_until_a_stop_signal_ends_quietly_on_the_stop_only(context):
     ran_on = []
-    with until_stop_signal():
+    with until_stop_signal() as stop:
         raise KeyboardInterrupt
+    assert stop.signalled
+    with until_stop_signal() as stop:
+        pass
+    assert not stop.signalled  # a block that ran to its end
     with pytest.raises(RuntimeError, match="a real failure"), until_stop_signal():
         raise RuntimeError("a real failure")
     rclpy.shutdown()
-    with until_stop_signal():
+    with until_stop_signal() as stop:
         raise RuntimeError("failed to get subscription count: publisher's context is invalid")
-    ran_on.append(True)  # reached: the stop did not leave the function
+    ran_on.append(stop.signalled)  # reached: the stop did not leave the function
     assert ran_on == [True]
 
 
