@@ -19,7 +19,7 @@ from pathlib import Path
 
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 
-from tactile_bag.mcap_crcs import McapError, fill_mcap_crcs
+from tactile_bag.mcap_crcs import McapError, check_summary_crc, fill_mcap_crcs
 from tactile_bag.message_types import MessageTypeError, add_types, bag_typestore
 
 try:
@@ -153,6 +153,13 @@ class BagReader:
             raise BagError(f"bag {self.path} cannot be opened ({reason}); expected a rosbag2 directory with "
                            "metadata.yaml and its .mcap or .db3 file, complete (a recorder killed with SIGKILL "
                            "leaves an unreadable file)") from exc
+        for mcap in sorted(self.path.glob("*.mcap")):
+            try:
+                check_summary_crc(mcap)
+            except McapError as exc:
+                self._reader.close()
+                raise BagError(f"bag {self.path}: {exc}: bytes of the file changed after it was written; take it "
+                               "from a copy") from exc
         for connection in self._reader.connections:
             if not (isinstance(connection.topic, str) and isinstance(connection.msgtype, str)
                     and type(connection.msgcount) is int):

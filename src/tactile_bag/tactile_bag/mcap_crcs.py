@@ -84,6 +84,38 @@ def fill_mcap_crcs(path: str | Path) -> McapCrcs:
 Patch = tuple[int, int, int]  # file offset of a uint32 CRC field, its value now, the value to write
 
 
+def check_summary_crc(path: str | Path) -> None:
+    """McapError if the Footer's `summary_crc` is set and its summary's bytes give another CRC-32.
+
+    The summary (channels, schemas, statistics, the chunk index) tells a reader which topics the file holds and where
+    their messages lie; a byte changed there read, without any error, as fewer messages or a topic of another name
+    (found in review: 28 of 30 estimates, no ground truth matched). It is a few kB at the file's end, so checking it
+    costs nothing next to reading the messages. A summary_crc of 0 ("not available") passes, and so does a file
+    whose end is no Footer and magic: the reader reports such damage itself."""
+    path = Path(path)
+    try:
+        with path.open("rb") as file:
+            footer_start = os.fstat(file.fileno()).st_size - _FOOTER_RECORD.size - len(MCAP_MAGIC)
+            if footer_start < len(MCAP_MAGIC):
+                return
+            file.seek(footer_start)
+            footer = file.read(_FOOTER_RECORD.size + len(MCAP_MAGIC))
+            opcode, length, summary_start, _, stored = _FOOTER_RECORD.unpack_from(footer)
+            is_footer = (opcode, length) == (_FOOTER, _FOOTER_RECORD.size - _RECORD_HEAD.size)
+            if footer[_FOOTER_RECORD.size:] != MCAP_MAGIC or not is_footer or not stored:
+                return
+            start = summary_start or footer_start  # without a summary, the CRC is of the Footer's fields alone
+            if not len(MCAP_MAGIC) <= start <= footer_start:
+                raise McapError(f"{path} is damaged: its Footer puts the summary at byte {summary_start}, outside the "
+                                f"file's {footer_start} bytes before the Footer")
+            computed = _crc_of(file, footer_start + _FOOTER_CRC_AT - start, 0, at=start)
+    except OSError as exc:
+        raise McapError(f"{path}: cannot check its summary: {exc}") from exc
+    if computed != stored:
+        raise McapError(f"{path} is damaged: its summary (the index of its topics and messages) has the CRC-32 "
+                        f"{stored:#010x} in its Footer, its bytes give {computed:#010x}")
+
+
 def _plan_mcap_crcs(file: BinaryIO, path: Path) -> tuple[int, list[list[Patch]], int, int]:
     """(chunks, [chunk CRC patches, data-section and summary CRC patches], data-section CRC, summary CRC)."""
     size = os.fstat(file.fileno()).st_size

@@ -397,6 +397,35 @@ def test_damaged_metadata(sim_bag, tmp_path):
         BagReader(bag)
 
 
+@pytest.mark.parametrize("where", [0.25, 0.5, 0.9])
+def test_a_byte_changed_in_the_summary_is_refused_by_its_crc(sim_bag, tmp_path, where):
+    """The summary (channels, statistics, the chunk index) is read without any error after most changes: as fewer
+    messages, or a topic of another name (found in review). Its CRC in the Footer, which BagWriter fills in, is
+    checked when the bag is opened."""
+    bag = copy_bag(sim_bag, tmp_path / "summary")
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    footer_start = len(data) - 37  # Footer record (1 + 8 + 8 + 8 + 4 bytes), then the 8-byte magic
+    summary_start = struct.unpack_from("<Q", data, footer_start + 9)[0]
+    data[summary_start + int(where * (footer_start - summary_start))] ^= 0x20
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r"is damaged: its summary \(the index of its topics and messages\) has the "
+                                       r"CRC-32 0x[0-9a-f]{8} in its Footer, its bytes give 0x[0-9a-f]{8}: bytes of "
+                                       "the file changed after it was written; take it from a copy"):
+        BagReader(bag)
+
+
+def test_a_summary_without_its_crc_is_read_unchecked(sim_bag, tmp_path):
+    """summary_crc 0 means "not available" (the rosbags writer's, before BagWriter fills it in)."""
+    bag = copy_bag(sim_bag, tmp_path / "no_summary_crc")
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    struct.pack_into("<I", data, len(data) - 12, 0)  # the Footer's summary_crc, before the magic
+    mcap.write_bytes(bytes(data))
+    with BagReader(bag) as reader:
+        assert sum(reader.counts.values()) > 0
+
+
 def test_a_record_length_too_large_to_allocate_is_refused(sim_bag, tmp_path):
     """One byte of the MCAP header record's length set to 0x7f: rosbags tried to read 2**62 bytes, and the MemoryError
     ended tactile-bag in a traceback (found in review)."""
