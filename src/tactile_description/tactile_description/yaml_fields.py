@@ -66,6 +66,9 @@ def load_yaml_file(path: str | os.PathLike, what: str, error: type[Exception] = 
         return yaml.load(text, Loader=YamlLoader)  # a SafeLoader: builds no Python objects
     except yaml.YAMLError as exc:
         raise error(f"{what} {path} is not valid YAML: {exc}") from exc
+    except RecursionError as exc:  # PyYAML's composer recurses once per level (a traceback: found in review)
+        raise error(f"{what} {path} nests its lists or mappings too deeply for a YAML reader; no scene, sensor "
+                    "description or camera sources file needs more than a few levels") from exc
 
 
 class YamlFields:
@@ -125,6 +128,6 @@ class YamlFields:
         return float(value[0]), float(value[1])
 
     def finish(self) -> None:
-        unknown = sorted(set(self.node) - self._used)
+        unknown = sorted(set(self.node) - self._used, key=repr)  # keys of mixed types (1, 'zz') do not compare
         if unknown:
             raise self.error(f"{self.where}: unknown key(s) {unknown}")

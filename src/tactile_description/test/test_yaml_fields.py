@@ -5,7 +5,7 @@ import math
 import pytest
 import yaml
 
-from tactile_description.yaml_fields import YamlLoader, load_yaml_file
+from tactile_description.yaml_fields import YamlFields, YamlLoader, load_yaml_file
 
 
 @pytest.mark.parametrize("text, value", [
@@ -53,6 +53,22 @@ def test_unreadable_non_utf8_and_non_yaml_files_raise_the_given_error_naming_the
     broken.write_text("a: [unclosed")
     with pytest.raises(Refused, match=f"thing file {broken} is not valid YAML"):
         load_yaml_file(broken, "thing file", Refused)
+
+
+def test_nesting_too_deep_for_the_yaml_reader_raises_the_given_error(tmp_path):
+    """1 KB of brackets: PyYAML's RecursionError was a traceback (found in review)."""
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("timeline: " + "[" * 2000 + "]" * 2000 + "\n")
+    with pytest.raises(ValueError, match=f"scene {deep} nests its lists or mappings too deeply for a YAML reader"):
+        load_yaml_file(deep, "scene", ValueError)
+
+
+def test_unknown_keys_of_mixed_types_are_all_named():
+    """sorted() of 1 and 'zz' raised TypeError (found in review)."""
+    fields = YamlFields({1: "oops", "zz": "typo", "known": 3}, "scene")
+    assert fields.raw("known") == 3
+    with pytest.raises(ValueError, match=r"scene: unknown key\(s\) \['zz', 1\]"):
+        fields.finish()
 
 
 def test_a_key_given_twice_in_one_mapping_is_refused_naming_both_lines(tmp_path):

@@ -47,6 +47,11 @@ MAX_SPHERE_CHI = 0.8
 #: of the numerical model for a / h <= 1, 20 % off at 1.25 and twice the exact force at 2.5.
 MAX_PUNCH_RADIUS_LAYERS = 1.0
 
+#: Largest Coulomb friction coefficient a contact may have (scenes and `tactile-sim press`): far above any gel's
+#: (silicone on steel: about 1-3). From about 1e16 the stick depth's difference of two nearly equal depths rounded
+#: to 0, and a sheared press reported no side force at all (found in review).
+MAX_FRICTION = 10.0
+
 #: Smallest radius at which the analytic model places its force samples. A vanishing contact (depth 1e-30 m) has
 #: a radius below the rounding of its position; without this floor its samples would all round onto the centre,
 #: and a centre exactly on a bin edge would load one side only instead of splitting evenly.
@@ -377,6 +382,9 @@ def ground_truth_model(sensor: SensorDescription, name: str = "analytic") -> Gro
 def press_contact(x_mm: float, y_mm: float, depth_mm: float, shape: str = "sphere", radius_mm: float | None = None,
                   shear_x_mm: float = 0.0, shear_y_mm: float = 0.0, friction: float = 1.0) -> Contact:
     """The contact described by the `tactile-sim press` options (millimetres, as typed on the command line)."""
+    if not (is_number(friction) and 0.0 <= friction <= MAX_FRICTION):
+        raise ValueError(f"--friction must be a Coulomb coefficient from 0 to {MAX_FRICTION:g}, as in scenes, got "
+                         f"{friction!r}")
     if shape == "sphere":
         indenter: Shape = Sphere() if radius_mm is None else Sphere(radius_mm * 1e-3)
     elif shape == "punch":

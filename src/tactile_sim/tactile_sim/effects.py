@@ -337,15 +337,12 @@ class CameraDropout(EffectSpec):
 class _CameraDropout(BoundEffect):
     """Acts on the quantised uint8 images and the camera_ok flags (see `apply_transport`)."""
 
-    def __init__(self, spec: CameraDropout, ctx: EffectContext):
-        super().__init__(spec, ctx)
-        self.last_good = np.zeros((len(ctx.camera_ids), *ctx.image_shape), dtype=np.uint8)
-
-    def apply_transport(self, images: np.ndarray, camera_ok: np.ndarray, frame_index: int) -> None:
+    def apply_transport(self, images: np.ndarray, camera_ok: np.ndarray, frame_index: int,
+                        delivered: np.ndarray) -> None:
+        """`delivered`: each camera's last frame delivered good (EffectChain), which "frozen" repeats."""
         if not self.spec.active(frame_index):
-            self.last_good[self.selected] = images[self.selected]
             return
-        images[self.selected] = 0 if self.spec.mode == "black" else self.last_good[self.selected]
+        images[self.selected] = 0 if self.spec.mode == "black" else delivered[self.selected]
         camera_ok[self.selected] = False
 
 
@@ -353,12 +350,16 @@ EFFECTS: dict[str, type[EffectSpec]] = {cls.name: cls for cls in (
     SensorNoise, DefocusBlur, IlluminationDrift, LedFlicker, ExposureSaturation, CameraDropout, ReferenceDrift,
     CameraMisalignment)}
 
+#: Largest frame index an effect's `frames` may name: the most frames a scene may have (scene.MAX_FRAMES).
+MAX_EFFECT_FRAME = 10_000_000
+
 _RULES = {
     # key: (kind, check, what the user should write)
     "sigma": ("number", lambda v: 0 < v <= 255, "in (0, 255] grey levels"),
     "sigma_px": ("number", lambda v: 0 < v <= 20, "in (0, 20] pixels"),
     "amplitude": ("number", lambda v: 0 <= v < 1, "in [0, 1) (a fraction of the brightness)"),
-    "period_s": ("number", lambda v: v > 0, "> 0 seconds"),
+    # A period of 1e-310 s made sin(inf): NaN brightness, black frames flagged good (found in review).
+    "period_s": ("number", lambda v: v >= 1e-3, ">= 0.001 seconds"),
     "gain": ("number", lambda v: 0 < v <= 100, "in (0, 100]"),
     "rotation_deg": ("number", lambda v: abs(v) <= 45, "within +-45 degrees"),
     "dimming_per_s": ("number", lambda v: 0 <= v <= 1, "in [0, 1] (fraction of the brightness lost per second)"),
@@ -396,10 +397,11 @@ def _effect_value(kind: str, key: str, value, where: str):
         if not (isinstance(value, list) and value and all(isinstance(c, str) for c in value)):
             raise SceneError(f"{here} must be a non-empty list of camera ids, got {value!r}")
         return tuple(value)
-    if key == "frames":
+    if key == "frames":  # at most MAX_EFFECT_FRAME: 10**400 overflowed a float when the effect was bound
         if not (isinstance(value, list) and len(value) == 2 and all(is_whole_number(v, 0) for v in value)
-                and value[0] < value[1]):
-            raise SceneError(f"{here} must be [first, stop) frame indices with 0 <= first < stop, got {value!r}")
+                and value[0] < value[1] <= MAX_EFFECT_FRAME):
+            raise SceneError(f"{here} must be [first, stop) frame indices with 0 <= first < stop <= "
+                             f"{MAX_EFFECT_FRAME}, got {value!r}")
         return (value[0], value[1])
     kind_of_value, check, expected = _RULES[key]
     if kind_of_value == "choice":
@@ -421,6 +423,10 @@ class EffectChain:
 
     image_effects: list[BoundEffect] = field(default_factory=list)
     transport_effects: list[_CameraDropout] = field(default_factory=list)
+    #: Each camera's last frame that left the transport stage good: what a frozen camera repeats. One copy for all
+    #: dropouts: each kept its own, so a camera frozen while another dropout blacked it out repeated a frame never
+    #: delivered, or froze on black after good ones (found in review).
+    delivered: np.ndarray | None = None
 
     def apply_images(self, images: np.ndarray, frame_index: int, time_s: float) -> None:
         for effect in self.image_effects:
@@ -428,8 +434,13 @@ class EffectChain:
                 effect.apply(images, frame_index, time_s)
 
     def apply_transport(self, images: np.ndarray, camera_ok: np.ndarray, frame_index: int) -> None:
+        if not self.transport_effects:
+            return
+        if self.delivered is None:
+            self.delivered = np.zeros_like(images)  # frozen before any good frame: black
         for effect in self.transport_effects:
-            effect.apply_transport(images, camera_ok, frame_index)
+            effect.apply_transport(images, camera_ok, frame_index, self.delivered)
+        self.delivered[camera_ok] = images[camera_ok]
 
 
 def bind_effects(specs: Sequence[EffectSpec], ctx: EffectContext) -> EffectChain:

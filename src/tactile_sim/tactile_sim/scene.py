@@ -25,8 +25,8 @@ import numpy as np
 from tactile_description import BinGrid, SensorDescription, default_sensor_path
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_description.yaml_fields import YamlFields, load_yaml_file
-from tactile_sim.contact import Contact, FlatPunch, Shape, Sphere, press_problem, shear_problem
-from tactile_sim.effects import EffectContext, EffectSpec, SceneError, parse_effect
+from tactile_sim.contact import MAX_FRICTION, Contact, FlatPunch, Shape, Sphere, press_problem, shear_problem
+from tactile_sim.effects import MAX_EFFECT_FRAME, EffectContext, EffectSpec, SceneError, parse_effect
 
 MM = 1e-3
 SEGMENT_KINDS = ("rest", "press", "contacts", "press_grid", "random_presses", "path")
@@ -36,7 +36,11 @@ REGIONS = ("surface", "edges", "corners")
 SCENE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,99}")
 
 #: Most frames a scene may have (all segments together): 10 million frames of the reference sensor are 640 GB.
-MAX_FRAMES = 10_000_000
+MAX_FRAMES = MAX_EFFECT_FRAME
+
+#: Largest distance a random press's min_separation_mm or edge_band_mm may name, mm (1 m, 20 reference surfaces): 1e199
+#: mm overflowed a float in the check that the contacts fit (found in review).
+MAX_SCENE_LENGTH_MM = 1000.0
 
 #: Largest indenter diameter a scene may name, mm (twice the reference surface); the sensor's gel then limits the
 #: sphere's depth and the punch's diameter further (contact.press_problem).
@@ -97,7 +101,7 @@ def _contact(node, where: str, default_shape: Shape) -> Contact:
     y = n.number("y_mm") * MM
     depth = n.number("depth_mm", low=0.0) * MM
     shear = tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0]))
-    friction = n.number("friction", 1.0, low=0.0, high=10.0)
+    friction = n.number("friction", 1.0, low=0.0, high=MAX_FRICTION)
     n.finish()
     return Contact(x, y, depth, shape, shear, friction)
 
@@ -141,7 +145,7 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
         params.update(x_m=n.number("x_mm") * MM, y_m=n.number("y_mm") * MM,
                       depths_m=tuple(d * MM for d in depths),
                       shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])),
-                      friction=n.number("friction", 1.0, low=0.0, high=10.0))
+                      friction=n.number("friction", 1.0, low=0.0, high=MAX_FRICTION))
         count, deepest, shear = len(depths), max(depths) * MM, math.hypot(*params["shear_m"])
     elif kind == "contacts":
         items = n.raw("contacts", required=True)
@@ -159,7 +163,7 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
                       depth_m=tuple(v * MM for v in n.span("depth_mm")),
                       per_position=n.count("depths_per_position"),
                       shear_m=tuple(v * MM for v in n.span("shear_mm")) if n.has("shear_mm") else None,
-                      friction=n.number("friction", 1.0, low=0.0, high=10.0))
+                      friction=n.number("friction", 1.0, low=0.0, high=MAX_FRICTION))
         count = params["cols"] * params["rows"] * params["per_position"]
         deepest, shear = params["depth_m"][1], params["shear_m"][1] if params["shear_m"] else 0.0
     elif kind == "random_presses":
@@ -171,10 +175,12 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
                       shear_m=tuple(v * MM for v in n.span("shear_mm", [0.0, 0.0])),
                       margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
                       edge_band_m=tuple(v * MM for v in n.numbers("edge_band_mm", 2, [-2.0, 3.0])),
-                      min_separation_m=n.number("min_separation_mm", 0.0, low=0.0) * MM,
-                      friction=n.number("friction", 1.0, low=0.0, high=10.0))
-        if params["edge_band_m"][0] > params["edge_band_m"][1]:
-            raise SceneError(f"{where}.edge_band_mm must be [inner, outer] signed distances with inner <= outer")
+                      min_separation_m=n.number("min_separation_mm", 0.0, low=0.0, high=MAX_SCENE_LENGTH_MM) * MM,
+                      friction=n.number("friction", 1.0, low=0.0, high=MAX_FRICTION))
+        inner, outer = params["edge_band_m"]
+        if not (-MAX_SCENE_LENGTH_MM * MM <= inner <= outer <= MAX_SCENE_LENGTH_MM * MM):
+            raise SceneError(f"{where}.edge_band_mm must be [inner, outer] signed distances with inner <= outer, "
+                             f"within +-{MAX_SCENE_LENGTH_MM:g} mm")
         count, deepest, shear = n.count("frames"), params["depth_m"][1], params["shear_m"][1]
     else:  # path
         count = n.count("frames", low=2)

@@ -125,3 +125,12 @@ def test_unusable_paths_unsafe_names_and_huge_counts_get_one_line_and_status_2(t
     # a scene refused it, one press reported fx +1.3 N for it
     assert "a shear of 5 mm is longer than the 4 mm compliant gel" in refused(
         "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "1", "--shear-x-mm", "3", "--shear-y-mm", "4")
+    # scenes refused it, a press reported fx +0.0000 N for a sheared press at 1e20 (found in review)
+    assert "--friction must be a Coulomb coefficient from 0 to 10, as in scenes, got 1e+20" in refused(
+        "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "1", "--shear-x-mm", "1", "--friction", "1e20")
+    crowded = tmp_path / "crowded.yaml"  # an OverflowError checking that the contacts fit, a directory left behind
+    crowded.write_text("name: crowded\nseed: 1\ntimeline: [{random_presses: {frames: 3, depth_mm: 1, "
+                       "min_separation_mm: 1.0e+199}}]\n")
+    assert "min_separation_mm must be a number in [0.0, 1000.0]" in refused(
+        "generate", "--scene", str(crowded), "--out", str(tmp_path / "c"))
+    assert not (tmp_path / "c").exists()

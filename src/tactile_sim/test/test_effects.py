@@ -120,6 +120,26 @@ def test_frozen_camera_repeats_its_last_good_frame():
     assert not np.array_equal(outputs[2][0][1], outputs[0][0][1])  # the other cameras go on
 
 
+@pytest.mark.parametrize("order", [("black", "frozen"), ("frozen", "black")])
+def test_a_frozen_camera_repeats_its_last_frame_delivered_whatever_other_dropouts_did(order):
+    """cam0 black in frames [3, 6), frozen in [5, 9): frames 6-8 repeat frame 2, the last one delivered. Each dropout
+    kept its own last frame: black first, they froze on black; frozen first, they repeated frame 4, which was blacked
+    out and never delivered (found in review)."""
+    windows = {"black": [3, 6], "frozen": [5, 9]}
+    chain = bind_effects([parse_effect({"type": "camera_dropout", "cameras": ["cam0"], "frames": windows[mode],
+                                        "mode": mode}, "t") for mode in order], CTX)
+    outputs = []
+    for i in range(10):
+        out = quantize(_images(seed=i))
+        ok = np.ones(4, bool)
+        chain.apply_transport(out, ok, i)
+        outputs.append((out[0].copy(), bool(ok[0])))
+    assert [ok for _, ok in outputs] == [True] * 3 + [False] * 6 + [True]
+    assert outputs[2][0].any()
+    for i in range(6, 9):
+        np.testing.assert_array_equal(outputs[i][0], outputs[2][0])
+
+
 def test_frozen_from_the_first_frame_is_black():
     frozen, ok = _run([{"type": "camera_dropout", "cameras": ["cam3"], "mode": "frozen"}])
     assert not frozen[3].any() and not ok[3]

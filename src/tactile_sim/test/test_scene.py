@@ -125,6 +125,17 @@ def _scene(**overrides):
     (_scene(timeline=[{"rest": {"frames": 6_000_000}}, {"rest": {"frames": 6_000_000}}]),
      r"timeline\[1\].rest: the scene reaches 12000000 frames here, more than 10000000"),
     (_scene(effects=[{"type": "sensor_noise", "sigma": 1e300}]), r"'sigma' must be a number in \(0, 255\]"),
+    # Found in review: an OverflowError binding the effect (a half-written data set), sin(inf) = NaN in the images,
+    # an OverflowError in the check that the contacts fit, no side force at a friction of 1e20
+    (_scene(effects=[{"type": "reference_drift", "frames": [10**400, 10**400 + 1]}]),
+     r"'frames' must be \[first, stop\) frame indices with 0 <= first < stop <= 10000000"),
+    (_scene(effects=[{"type": "illumination_drift", "period_s": 1e-310}]), r"'period_s' must be a number >= 0.001"),
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "min_separation_mm": 1e199}}]),
+     r"min_separation_mm must be a number in \[0.0, 1000.0\]"),
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "region": "edges",
+                                          "edge_band_mm": [-1e200, 0]}}]), r"edge_band_mm .* within \+-1000 mm"),
+    (_scene(timeline=[{"press": {"x_mm": 1, "y_mm": 2, "depths_mm": [1], "friction": 1e20}}]),
+     r"friction must be a number in \[0.0, 10.0\]"),
 ])
 def test_bad_scenes_get_clear_errors(raw, message):
     with pytest.raises(SceneError, match=message):
