@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -118,3 +119,26 @@ def test_a_graph_tool_that_overruns_its_test_takes_its_nodes_with_it(run_graph_t
     if running(node_pid):
         os.kill(node_pid, signal.SIGKILL)
         pytest.fail("the tool's node outlived the tool")
+
+
+def test_a_ctrl_c_while_the_nodes_are_stopped_does_not_leave_the_rest_running():
+    """tactile-demo and tactile-latency stop their nodes one at a time; a second Ctrl-C (or SIGTERM) meanwhile raised
+    KeyboardInterrupt out of stop_nodes, and the nodes not yet stopped ran on, adopted by init (found in review).
+    Stand-ins for nodes that take a second to exit after their SIGINT."""
+    slow_exit = ("import signal, sys, time\n"
+                 "signal.signal(signal.SIGINT, lambda *_: (time.sleep(1.0), sys.exit(0)))\n"
+                 "print('ready', flush=True)\n"
+                 "time.sleep(60)\n")
+    processes = [subprocess.Popen([sys.executable, "-c", slow_exit], stdout=subprocess.PIPE, text=True)
+                 for _ in range(2)]
+    try:
+        assert [p.stdout.readline() for p in processes] == ["ready\n"] * 2  # their handlers are installed
+        ctrl_c = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))  # while the first one exits
+        ctrl_c.start()
+        codes = stop_nodes(processes)
+        ctrl_c.join()
+        assert codes == [0, 0]
+    finally:
+        for process in processes:
+            process.kill()
+            process.communicate()

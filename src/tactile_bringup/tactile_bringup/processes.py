@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -17,7 +18,7 @@ from tactile_conversions.spinning import spin_until
 from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC
 from tactile_description import SensorDescription, load_sensor
-from tactile_description.command_line import error_exit
+from tactile_description.command_line import error_exit, stop_signals_ignored
 from tactile_sim.scene import load_scene
 
 #: Time a stuck node gets to write its stacks before it is killed.
@@ -39,6 +40,7 @@ def check_tool_inputs(sensor_config: str, scene: str, log_dir: Path) -> SensorDe
     load_scene(scene, sensor)
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=log_dir).close()  # a directory that takes no file (/proc, read-only, not ours)
     except OSError as exc:  # FileExistsError for a file, NotADirectoryError for a path under one
         raise LogDirError(f"--log-dir {log_dir}: cannot make it a directory for the nodes' logs "
                           f"({exc.strerror or exc}); name a directory or a path to create") from exc
@@ -65,7 +67,16 @@ def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None)
 
 
 class GraphStartError(RuntimeError):
-    """A node of the graph exited while the graph was starting (a bad model, scene or sensor file, ...)."""
+    """A node of the graph exited while the graph was starting (a bad model, scene or sensor file, ...), or could
+    not be started."""
+
+
+def started(spec: NodeSpec, log_dir: Path) -> subprocess.Popen:
+    """start_node, with a log file that cannot be written (a directory of its name) as a GraphStartError."""
+    try:
+        return start_node(spec, log_dir)
+    except OSError as exc:
+        raise GraphStartError(f"node {spec.name} cannot be started: {exc.strerror or exc}: {exc.filename}") from exc
 
 
 def log_tail(log_dir: Path, spec: NodeSpec, lines: int = 1) -> str:
@@ -91,7 +102,7 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     others = [s for s in specs if s not in cameras]
     processes = []
     try:
-        processes += [start_node(spec, log_dir) for spec in others]
+        processes += [started(spec, log_dir) for spec in others]
         spin_until(probe, lambda: probe.count_publishers(ESTIMATE_TOPIC) or first_exited(others, processes),
                    timeout_s)
         died = first_exited(others, processes)
@@ -101,7 +112,7 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
                                   f"{log_tail(log_dir, died) or '(its log is empty)'} (log: {log_dir / died.name}.log)")
         if not probe.count_publishers(ESTIMATE_TOPIC):
             print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
-        processes += [start_node(spec, log_dir) for spec in cameras]
+        processes += [started(spec, log_dir) for spec in cameras]
     except BaseException:  # Ctrl-C, an error while waiting or a node that exited: leave no node behind
         stop_nodes(processes)
         raise
@@ -143,8 +154,11 @@ def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> li
     stacks into its log (tactile_conversions.node_main), so that the log says where it was stuck, and is then
     killed.
     """
-    for process in processes:
-        _stop_node(process, timeout_s)
+    # A second Ctrl-C or a SIGTERM meanwhile would end the caller with the rest of the nodes still running (found
+    # in review): the stop is under way anyway.
+    with stop_signals_ignored():
+        for process in processes:
+            _stop_node(process, timeout_s)
     return [process.returncode for process in processes]
 
 
