@@ -165,10 +165,10 @@ def test_a_node_refusing_a_parameter_says_why_in_one_line_and_exits_with_status_
 
 
 @pytest.mark.parametrize("problem", ["particles_in_the_rigid_base", "a_scene_that_fails_while_it_plays"])
-def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(ros_domain, tmp_path, problem):
+def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(ros_probe, tmp_path, problem):
     """A sensor description that only the simulator refuses, and a scene that fails only once its frames are made
     (no room for four presses 45 mm apart, after three frames at rest), ended sim_camera_node in a traceback with
-    status 1, the second with the graph running (found in review)."""
+    status 1, the second with the graph running (found in review). The probe listens, so that the scene plays."""
     if problem == "particles_in_the_rigid_base":
         config = tmp_path / "sensor.yaml"
         config.write_text(re.sub(r"(?m)^  layer: particle_layer$", "  layer: transparent_base",
@@ -180,11 +180,18 @@ def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(
                          "  - rest: {frames: 3}\n  - random_presses: {frames: 10, contacts_per_frame: 4, "
                          "min_separation_mm: 45.0, depth_mm: [0.3, 0.5]}\n")
         parameters, line = ["sensor_config:=" + CONFIG, "scene:=" + str(scene)], "parameter scene: "
-    run = subprocess.run(["sim_camera_node", "--ros-args", *itertools.chain(*(["-p", p] for p in parameters))],
-                         capture_output=True, text=True, timeout=60)
-    last = run.stderr.strip().splitlines()[-1]
-    assert run.returncode == 2 and last.startswith("tactile_sim_cameras: " + line), run.stderr
-    assert "Traceback" not in run.stderr
+    ros_probe.create_subscription(Image, "/tactile/cam0/image", lambda _: None, qos_profile_sensor_data)
+    node = subprocess.Popen(["sim_camera_node", "--ros-args", *itertools.chain(*(["-p", p] for p in parameters))],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        spin_until(ros_probe, lambda: node.poll() is not None, 60.0)
+    finally:
+        if node.poll() is None:
+            node.kill()
+        _, stderr = node.communicate()
+    last = stderr.strip().splitlines()[-1]
+    assert node.returncode == 2 and last.startswith("tactile_sim_cameras: " + line), stderr
+    assert "Traceback" not in stderr
 
 
 def wait_for_log(path, text: str, timeout_s: float) -> str:
@@ -231,20 +238,30 @@ def test_the_bundle_node_logs_drops_at_once_then_at_most_every_drop_log_period(r
 
 
 @pytest.mark.system
-def test_the_simulated_cameras_without_loop_say_once_that_the_scene_ended(collect, tmp_path):
+def test_the_simulated_cameras_play_from_the_first_frame_once_subscribed_then_say_once_that_the_scene_ended(
+        collect, tmp_path):
+    """8 frames, loop false: nothing is played while nobody listens (the scene ran on while DDS discovery connected
+    the bundle node, and under load the reference frames were taken during a press: found in review), then all 8."""
     scene = tmp_path / "short.yaml"
     scene.write_text("name: short\nseed: 1\ntimeline:\n  - rest: {frames: 8}\n")
     spec = NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
                     {"sensor_config": CONFIG, "scene": str(scene), "loop": False, "rate_hz": 40})
     process = start_node(spec, tmp_path)
     try:
+        wait_for_log(tmp_path / "sim_once.log", "simulating scene", timeout_s=20.0)
+        time.sleep(1.0)  # 40 frame periods: the scene would have ended unheard
+        unheard = (tmp_path / "sim_once.log").read_text()
+        images = collect(Image, "/tactile/cam0/image", seconds=20.0, qos=qos_profile_sensor_data,
+                         until=lambda received: len(received) >= 8)
         wait_for_log(tmp_path / "sim_once.log", "ended", timeout_s=20.0)
         after_the_end = collect(Image, "/tactile/cam0/image", seconds=0.5, qos=qos_profile_sensor_data)
         running = process.poll() is None
     finally:
         codes = stop_nodes([process])
     log = (tmp_path / "sim_once.log").read_text()
+    assert "ended" not in unheard and "playing" not in unheard, unheard
     assert running and codes == [0], log
+    assert len(images) == 8, log  # from the first frame: the subscriber lost none
     assert log.count(f"scene '{scene}' ended (8 frames; loop false): publishing nothing more") == 1, log
     assert after_the_end == []
 
