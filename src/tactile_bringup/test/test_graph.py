@@ -1,6 +1,7 @@
 import ast
 from pathlib import Path
 
+import numpy as np
 import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
@@ -111,3 +112,20 @@ def test_rviz_config_shows_the_topics_the_fusion_node_publishes():
     assert topics == {"rviz_default_plugins/MarkerArray": MARKERS_TOPIC, "rviz_default_plugins/Wrench": WRENCH_TOPIC}
     markers = next(d for d in displays if d["Class"] == "rviz_default_plugins/MarkerArray")
     assert markers["Namespaces"] == {MARKER_NAMESPACE: True}
+
+
+def test_the_rviz_grid_lines_fall_on_the_bin_edges():
+    """RViz draws a Grid's lines at offset - count * size / 2 + i * size, i = 0..count (rviz_rendering's
+    Grid::createGridPlane). Its offset put the x lines on the columns' centres, half a bin off (found in review)."""
+    import yaml
+
+    from tactile_description import load_sensor
+
+    grid = load_sensor().grid
+    displays = yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text())["Visualization Manager"]["Displays"]
+    bins = next(d for d in displays if d["Class"] == "rviz_default_plugins/Grid")
+    size, count = bins["Cell Size"], bins["Plane Cell Count"]
+    for axis, edges in (("X", np.arange(grid.cols + 1) * grid.width_m / grid.cols),
+                        ("Y", np.arange(grid.rows + 1) * grid.length_m / grid.rows)):
+        lines = bins["Offset"][axis] - count * size / 2 + np.arange(count + 1) * size
+        assert np.abs(lines[:, None] - edges[None, :]).min(axis=0).max() < 5e-5, axis  # every edge within 0.05 mm

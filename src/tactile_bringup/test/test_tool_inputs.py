@@ -47,7 +47,8 @@ def test_a_log_directory_that_cannot_be_made_is_refused(program, capsys, tmp_pat
     afile = tmp_path / "afile"
     afile.write_text("")
     # /proc is a directory that takes no file: a traceback when the first node's log was opened (found in review)
-    for log_dir, why in ((afile, "File exists"), (afile / "x", "Not a directory"), (Path("/proc"), "No such file or directory")):
+    for log_dir, why in ((afile, "File exists"), (afile / "x", "Not a directory"),
+                         (Path("/proc"), "No such file or directory")):
         err = refused(capsys, program, ["--duration" if program == "tactile-demo" else "--window", "1",
                                         "--log-dir", str(log_dir)])
         assert f"--log-dir {log_dir}: cannot make it a directory for the nodes' logs ({why})" in err
