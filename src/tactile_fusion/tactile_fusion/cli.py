@@ -74,6 +74,18 @@ class SettingsError(ValueError):
     """A training or model setting out of its range (the message names it)."""
 
 
+def _image_size(sensor) -> int:
+    """The side of the cameras' square output images, which the model takes; SettingsError for other images (a 128 x
+    64 output failed in torch's matrix product once the frames were simulated: found in review)."""
+    sizes = {camera.output_size for camera in sensor.cameras}
+    size = next(iter(sizes))
+    if len(sizes) != 1 or size[0] != size[1]:
+        raise SettingsError(f"{sensor.source}: the model takes square camera images of one size, the sensor "
+                            f"description's cameras.output is {' and '.join(f'{w} x {h}' for w, h in sorted(sizes))} "
+                            "px; make it square (the reference sensor's: 128 x 128)")
+    return size[0]
+
+
 def _setting(check, *args, **kwargs):
     """check(*args, **kwargs), its ValueError (a setting out of range, which the message names) a SettingsError."""
     try:
@@ -134,7 +146,7 @@ def cmd_train(args) -> int:
         check_resumable(args.out)
     _threads(args)
     sensor = load_sensor(args.sensor)
-    args.image_size = sensor.cameras[0].output_size[0]
+    args.image_size = _image_size(sensor)
     model_config, train_config = _settings(args, sensor.n_cameras)
     head_extra = _further_draws(args, sensor)
     _output_dir(args.out)  # once the settings are accepted, before the data is simulated and the model trained
@@ -260,7 +272,7 @@ def cmd_recalibrate(args) -> int:
     _threads(args)
     sensor = load_sensor(args.sensor)
     added_camera = _setting(camera_to_add, sensor, args.add_camera)
-    args.image_size = sensor.cameras[0].output_size[0]
+    args.image_size = _image_size(sensor)
     # The base model, without the added camera, has the fewest cameras.
     model_config, train_config = _settings(args, sensor.n_cameras - 1, recalibration_epochs=args.recalibration_epochs)
     fractions = _fractions(args.fractions)

@@ -208,6 +208,10 @@ def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = Non
     if not (isinstance(camera_ids, list) and camera_ids and all(isinstance(i, str) for i in camera_ids)):
         raise DatasetError(f"{meta_path}: camera_ids must be a non-empty list of camera ids, got {camera_ids!r}; "
                            f"regenerate the data set")
+    # Read by whoever splits the frames (tactile-fusion): a KeyError or numpy's error there before (found in review).
+    if not (isinstance(meta.get("scene"), str) and is_whole_number(meta.get("seed"), 0)):
+        raise DatasetError(f"{meta_path}: scene must be a name and seed a whole number >= 0, got "
+                           f"{meta.get('scene')!r} and {meta.get('seed')!r}; regenerate the data set")
     n, c = _meta_count(meta, "frame_count", meta_path), len(camera_ids)
     h, w, rows, cols = (_meta_count(meta, k, meta_path) for k in ("image_height", "image_width", "rows", "cols"))
     expected = {"reference": ((c, h, w), np.uint8), "images": ((n, c, h, w), np.uint8),

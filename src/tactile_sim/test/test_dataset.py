@@ -116,6 +116,10 @@ def test_incomplete_and_foreign_directories_are_reported(sim, written, tmp_path)
     ("meta.json", {"complete": "no"}, "incomplete .*complete: 'no'"),
     ("meta.json", {"frame_count": 3.7}, "frame_count must be an integer >= 1, got 3.7"),
     ("meta.json", {"camera_ids": "cam0"}, "camera_ids must be a non-empty list"),
+    # tactile-fusion ended in a KeyError or numpy's error splitting the frames (found in review)
+    ("meta.json", {"seed": None}, "scene must be a name and seed a whole number >= 0, got 'effects' and None"),
+    ("meta.json", {"seed": -5}, "seed a whole number >= 0, got 'effects' and -5"),
+    ("meta.json", {"scene": 3}, "scene must be a name and seed a whole number >= 0, got 3 and"),
 ])
 def test_bad_metadata_and_contacts_are_reported(written, tmp_path, name, content, message):
     broken = _copy_of(written, tmp_path / "broken")
