@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
 import pickle
 from collections.abc import Mapping
@@ -68,13 +69,33 @@ def file_sha256(path: str | Path) -> str:
 
 
 def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = "") -> Path:
-    """Write model.json and model.pt into `out_dir`."""
+    """Write model.pt, then model.json, into `out_dir`, each whole or not at all (write_torch_file, write_json)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    write_torch_file(out_dir / STATE_DICT, {**model.state_dict(), WEIGHTS_FIELDS_KEY: weights_fields(model)},
+                     "run the command again")
     write_json(out_dir / MODEL_JSON, {"format_version": FORMAT_VERSION, "sensor_name": sensor_name,
                                       **model_fields(model)})
-    torch.save({**model.state_dict(), WEIGHTS_FIELDS_KEY: weights_fields(model)}, out_dir / STATE_DICT)
     return out_dir
+
+
+def write_torch_file(path: Path, data: dict, retry: str) -> None:
+    """torch.save of `data` into `path` whole or not at all, as replace_file writes; ModelFileError naming the file if
+    it cannot be written. torch.save straight onto `path` left it cut short on a full disk, with a traceback from
+    torch's writer (found in review).
+
+    Saved to model.partial (PARTIAL_SUFFIX in place of the suffix), not into a buffer: torch names the folder inside
+    its zip file after the file, "model" as in the shipped model.pt ("archive" from a buffer), so that `make model`
+    still writes the shipped model.pt to the byte."""
+    partial = path.with_suffix(PARTIAL_SUFFIX)
+    try:
+        torch.save(data, partial)
+        with open(partial, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(partial, path)
+    except (OSError, RuntimeError) as exc:  # torch's writer raises a RuntimeError on a full disk
+        discard(partial)
+        raise unwritable(path, exc, retry) from exc
 
 
 def model_fields(model: ForceFusionNet) -> dict:
@@ -255,21 +276,36 @@ def check_model_fits(model, sensor: SensorDescription) -> None:
                              "model and the sensor description of the same sensor")
 
 
+def finite_or_null(value):
+    """`value` with every NaN or Inf float, however deep in dicts and lists, as None: JSON has no such numbers, and a
+    training that diverged wrote "Infinity" into training.json, which strict JSON readers refuse (found in review)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_null(item) for item in value]
+    return value
+
+
 def write_json(path: str | Path, data: dict) -> None:
     """`data` as indented JSON in `path`, whole or not at all (replace_file); ModelFileError naming the file if it
     cannot be written."""
     path = Path(path)
     try:
-        replace_file(path, (json.dumps(data, indent=2, sort_keys=False) + "\n").encode())
+        replace_file(path, (json.dumps(finite_or_null(data), indent=2, sort_keys=False, allow_nan=False)
+                            + "\n").encode())
     except OSError as exc:
         raise unwritable(path, exc, "run the command again") from exc
 
 
-def unwritable(path: Path, exc: OSError, retry: str) -> ModelFileError:
+def unwritable(path: Path, exc: OSError | RuntimeError, retry: str) -> ModelFileError:
     """The error of a file that cannot be written (a read-only directory, a full disk), naming the file that failed
     (`path` or one written on the way to it) and what to do, ending with `retry`."""
-    return ModelFileError(f"{exc.filename or path} cannot be written ({exc.strerror or exc}): make room on the disk "
-                          f"or make {path.parent} writable, then {retry}")
+    name = getattr(exc, "filename", None) or path
+    reason = getattr(exc, "strerror", None) or one_line(exc)
+    return ModelFileError(f"{name} cannot be written ({reason}): make room on the disk or make {path.parent} "
+                          f"writable, then {retry}")
 
 
 #: What a file is written to first, beside itself (`replace_file`).

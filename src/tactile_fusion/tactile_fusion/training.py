@@ -9,7 +9,6 @@ features of the frozen CNN, see recalibration.py) share it.
 from __future__ import annotations
 
 import copy
-import os
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -24,6 +23,7 @@ from tqdm import tqdm
 from tactile_description import FORCE_COMPONENTS
 from tactile_description.command_line import one_line
 from tactile_description.value_checks import is_number, is_whole_number
+from tactile_fusion.artifacts import write_torch_file
 from tactile_fusion.data import FrameDataError, FrameSet, check_finite_targets, forces_sha256
 from tactile_fusion.fz_threshold import fit_threshold_and_fusion
 from tactile_fusion.least_squares import RIDGES, fit_fusion
@@ -493,13 +493,12 @@ def _phase_checkpoint(checkpoint_dir: Path | None, phase: str) -> Path | None:
 
 def _save_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig, state: dict,
                      data: dict | None) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save({"model": model.state_dict(), "model_config": model.config.to_dict(),
-                "components": list(model.components),
-                "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                "train_config": asdict(config), "data": data, "state": state}, tmp)
-    os.replace(tmp, path)  # atomic: an interruption never leaves a half-written checkpoint
+    # Whole or not at all: an interruption or a full disk never leaves a half-written checkpoint.
+    write_torch_file(path, {"model": model.state_dict(), "model_config": model.config.to_dict(),
+                            "components": list(model.components),
+                            "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                            "train_config": asdict(config), "data": data, "state": state},
+                     "free disk space and resume (--resume)")
 
 
 def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, config: TrainConfig,

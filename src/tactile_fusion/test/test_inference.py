@@ -1,6 +1,7 @@
 """ONNX export and the inference backends behind one interface: agreement, input checks, precisions."""
 
 import json
+import math
 import re
 import shutil
 
@@ -466,3 +467,30 @@ def test_a_json_file_that_cannot_be_written_is_one_error_and_leaves_the_file_bef
     assert path.read_bytes() == before and not partial.is_symlink()
     write_json(path, {"rmse_bin_n": [0.0, 0.0, 0.001]})
     assert json.loads(path.read_text()) == {"rmse_bin_n": [0.0, 0.0, 0.001]} and not partial.exists()
+
+
+def test_weights_that_cannot_be_written_are_one_error_and_leave_no_model_behind(model_dir, tmp_path):
+    """model.pt went straight onto its file: a full disk cut it short, with a traceback from torch's writer, and
+    model.json, written first, described weights that were not there (found in review). Now model.pt is written
+    beside itself (model.partial, here a link to /dev/full) and renamed into place, then model.json."""
+    out, _ = model_dir
+    model = load_model(out)
+    target = tmp_path / "model"
+    target.mkdir()
+    partial = (target / STATE_DICT).with_suffix(PARTIAL_SUFFIX)
+    partial.symlink_to("/dev/full")
+    with pytest.raises(ModelFileError, match=rf"{target / STATE_DICT} cannot be written \(.*\): make room"):
+        save_model(model, target)
+    assert list(target.iterdir()) == []
+    save_model(model, target)
+    assert sorted(p.name for p in target.iterdir()) == [MODEL_JSON, STATE_DICT]
+    assert torch.equal(load_model(target).fusion.expand.weight, model.fusion.expand.weight)
+
+
+def test_non_finite_numbers_are_written_to_json_as_null(tmp_path):
+    """A training that diverged wrote "train_rmse": Infinity into training.json: no JSON number (found in review)."""
+    path = tmp_path / "training.json"
+    write_json(path, {"history": [{"train_rmse": math.inf, "val_rmse": math.nan}, {"train_rmse": 0.5}], "ok": 1.0})
+    assert json.loads(path.read_text()) == {"history": [{"train_rmse": None, "val_rmse": None}, {"train_rmse": 0.5}],
+                                            "ok": 1.0}
+    assert "Infinity" not in path.read_text() and "NaN" not in path.read_text()
