@@ -17,6 +17,8 @@ best rank-r fit without a ridge, an approximation of the best rank-r ridge fit);
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -82,7 +84,13 @@ def fit_fusion(model: ForceFusionNet, train_source, val_source, ridges: tuple[fl
     rank = model.fusion.reduce.out_features if model.fusion.reduce is not None else None
     scores, solutions = {}, {}
     for ridge in ridges:
-        weights = torch.linalg.solve(_ridged(gram, ridge, len(x)), rhs)          # (F + 1, O)
+        try:
+            weights = torch.linalg.solve(_ridged(gram, ridge, len(x)), rhs)      # (F + 1, O)
+        except torch.linalg.LinAlgError:  # singular: features of a head that diverged (NaN, Inf), found in review
+            weights = None
+        if weights is None or not bool(torch.isfinite(weights).all()):  # no fit at this ridge (the SVD raised)
+            scores[ridge] = math.inf
+            continue
         if rank is not None:
             weights, basis = _reduce_rank(weights, x, y, rank)
         prediction = _design(xv) @ weights

@@ -2,6 +2,7 @@
 
 import copy
 import json
+import math
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -118,6 +119,21 @@ def test_rank_limited_fit_with_fewer_frames_than_the_rank_stays_finite(frames, t
     report = fit_fusion(model, *few, ridges=(1e-3,))
     assert np.isfinite(report["val_rmse"]["0.001"])
     assert all(torch.isfinite(p).all() for p in model.fusion.parameters())
+
+
+@pytest.mark.parametrize("rank", [None, 2])
+def test_a_fit_to_the_features_of_a_head_that_diverged_leaves_the_layer_as_it_was(frames, tiny_config, rank):
+    """A head learning rate of 1e6 made the features NaN: the solve raised "singular", and with a rank-limited layer
+    the SVD raised next (found in review). No ridge gives a fit then; the cycle that diverged is thrown away after."""
+    model = model_for(frames, replace(tiny_config, fusion_rank=rank)).eval()
+    train, val = splits(frames)
+    with torch.no_grad():
+        model.cnn.last_layer.linear.weight.fill_(math.nan)
+    sources = [CachedSource(model, part, "trunk") for part in (train, val)]
+    fusion_before = [p.clone() for p in model.fusion.parameters()]
+    report = fit_fusion(model, *sources, ridges=(1e-3, 1e-1))
+    assert report["ridge"] is None and report["val_rmse"] == {"0.001": math.inf, "0.1": math.inf}
+    assert all(torch.equal(p, q) for p, q in zip(model.fusion.parameters(), fusion_before, strict=True))
 
 
 @pytest.mark.parametrize("components", [("fx", "fy", "fz"), ("fz",)])
