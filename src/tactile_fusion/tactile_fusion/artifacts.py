@@ -26,6 +26,7 @@ import torch
 from tactile_description import FORCE_COMPONENTS, SensorDescription
 from tactile_description.command_line import one_line
 from tactile_description.json_file import read_json
+from tactile_description.sensor import MAX_BINS
 from tactile_description.value_checks import is_whole_number
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
 
@@ -174,6 +175,9 @@ def _description_problem(description: dict) -> str:
         value = description.get(key)
         if not is_whole_number(value):
             return f"{key} must be a whole number >= 1, got {value!r}"
+    if description["rows"] * description["cols"] > MAX_BINS:  # 10**6 x 10**6 allocated 48 TB: a traceback
+        return (f"rows x cols is {description['rows']} x {description['cols']} bins, more than any sensor description "
+                f"takes ({MAX_BINS})")
     if not (isinstance(scale, list) and len(scale) == 3):
         return f"force_scale_n must be a list of 3 numbers, got {scale!r}"
     try:

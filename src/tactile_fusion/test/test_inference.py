@@ -222,6 +222,9 @@ DAMAGED = [
      "model.json: model_config .* is not a model configuration"),
     (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(force_scale_n=[1.0, -1.0, 1.0])),
      "model.json: ForceFusionNet: force_scale_n must be 3 finite positive numbers"),
+    # allocated 48 TB for the weights (a traceback) before the sensor check (found in review)
+    (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(rows=10**6, cols=10**6)),
+     r"model.json: rows x cols is 1000000 x 1000000 bins, more than any sensor description takes \(16384\)"),
     (MODEL_JSON, "torch", lambda p: _edited_json(p, lambda d: d.update(cols=5)),
      r"model.pt holds the weights of another model than its model.json describes \(cols \d+ in the weights, 5 in "),
     (STATE_DICT, "torch", lambda p: p.write_bytes(p.read_bytes()[:300]), "model.pt cannot be read"),
