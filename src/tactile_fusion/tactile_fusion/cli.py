@@ -298,7 +298,7 @@ def cmd_export(args) -> int:
     from tactile_fusion.pipeline import (
         checked_model,
         export_model_dir,
-        fit_threshold_of_model_dir,
+        export_with_fitted_threshold,
         held_out_split,
         measure_model_dir,
     )
@@ -311,10 +311,13 @@ def cmd_export(args) -> int:
     test_split = held_out_split(model_dir, sensor, "test") if args.measure else None
     if args.fit_threshold:
         val, source, note = held_out_split(model_dir, sensor, "val")
-        threshold = fit_threshold_of_model_dir(model_dir, sensor, val)["fz_threshold_n"]
+        report, paths = export_with_fitted_threshold(model_dir, sensor, val)
+        threshold = report["fz_threshold_n"]
         chosen = "none (no candidate beats none)" if threshold is None else threshold_text(threshold)
         print(f"Fz threshold chosen on the validation split of {source}{note}: {chosen}")
-    for precision, path in export_model_dir(model_dir, sensor).items():
+    else:
+        paths = export_model_dir(model_dir, sensor)
+    for precision, path in paths.items():
         print(f"{precision}: {path}")
     if test_split is not None:
         metrics, measured_on = measure_model_dir(model_dir, sensor, test_split, args.threads)

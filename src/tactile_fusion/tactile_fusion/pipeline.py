@@ -243,14 +243,18 @@ def export_model_dir(model_dir: str | Path, sensor: SensorDescription) -> dict:
     return export_all(checked_model(model_dir, sensor), Path(model_dir))
 
 
-def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription, val: FrameSet) -> dict:
+def export_with_fitted_threshold(model_dir: str | Path, sensor: SensorDescription, val: FrameSet
+                                 ) -> tuple[dict, dict]:
     """Choose the Fz threshold of a trained model directory on `val` (`held_out_split`: the validation split of its
-    training data) as `tactile-fusion train` does, and write it into model.json and training.json's record; the ONNX
-    graphs are stale until re-exported (`export_model_dir`). For models trained before models had a threshold.
-    Returns fit_fz_threshold's report."""
+    training data) as `tactile-fusion train` does, export the graphs with it, then write it into model.json and
+    training.json's record; (fit_fz_threshold's report, {precision: path}). For models trained before models had a
+    threshold. In this order, a failure on the way (a graph that cannot be written, a Ctrl-C) leaves model.json as it
+    was: written first, it named a threshold that the graphs beside it lacked, and eval refused the directory (found in
+    review)."""
     model_dir = Path(model_dir)
     model = checked_model(model_dir, sensor)
     report = fit_fz_threshold(model, ImageSource(val.select_cameras(model.camera_ids), model.force_scale_n))
+    paths = export_all(model, model_dir)
     description = read_model_json(model_dir)
     description["fz_threshold_n"] = model.fz_threshold_n
     write_json(model_dir / MODEL_JSON, description)  # model.pt stays: the threshold is none of its weights
@@ -259,7 +263,7 @@ def fit_threshold_of_model_dir(model_dir: str | Path, sensor: SensorDescription,
         training = read_json_object(record, REPLACE_RECORD)
         training.setdefault("phases", {})["fz_threshold"] = report
         write_json(record, training)
-    return report
+    return report, paths
 
 
 def scene_source(scene: str) -> str:

@@ -279,6 +279,19 @@ def test_export_fit_threshold_gives_a_model_without_one_the_threshold_train_chos
     for precision, name in ONNX_FILES.items():
         assert measured[f"onnxruntime_{precision}"]["model_file_sha256"] == file_sha256(out / name), precision
 
+    # A graph that cannot be written leaves model.json and training.json as they were: written first, they named a
+    # threshold that the graphs beside them lacked, and eval refused the directory (found in review).
+    (out / MODEL_JSON).write_text(json.dumps(description))
+    (out / TRAINING_JSON).write_text(json.dumps(training))
+    run("export", "--model", str(out), "--quiet")
+    before = {f.name: file_sha256(f) for f in out.iterdir()}
+    partial = (out / ONNX_FILES["fp32"]).with_name(ONNX_FILES["fp32"] + PARTIAL_SUFFIX)
+    partial.symlink_to("/dev/full")
+    failed = run("export", "--model", str(out), "--fit-threshold", "--threads", "1", "--quiet", check=False)
+    assert failed.returncode == 2 and "cannot be written (No space left on device)" in failed.stderr
+    assert {f.name: file_sha256(f) for f in out.iterdir()} == before
+    run("eval", "--model", str(out), "--frames", "4", "--quiet")  # still a consistent model directory
+
 
 def test_export_rewrites_the_graphs_that_were_measured(tiny_model):
     """A re-export writes byte for byte the graphs whose figures metrics.json holds (it needs no data: int8 is
