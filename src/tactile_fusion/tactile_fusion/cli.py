@@ -352,12 +352,24 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def named(what: str):
+    """An argparse type for an option that names a file or directory: "" is refused. It was taken as no option:
+    `eval --dataset ""` evaluated the default test set without a word (found in review)."""
+    def parse(text: str) -> str:
+        if not text:
+            raise argparse.ArgumentTypeError(f"must name {what}, got ''")
+        return text
+    return parse
+
+
 def _training_options(parser: argparse.ArgumentParser) -> None:
     model, train = ModelConfig(), TrainConfig()
     data = parser.add_mutually_exclusive_group()
-    data.add_argument("--scene", default="paper_grid", help="scene name or YAML file to simulate (default "
+    data.add_argument("--scene", default="paper_grid", type=named("a scene or a YAML file"),
+                      help="scene name or YAML file to simulate (default "
                       "%(default)s)")
-    data.add_argument("--dataset", help="train on a dataset written by `tactile-sim generate` instead")
+    data.add_argument("--dataset", type=named("a data set directory"),
+                      help="train on a dataset written by `tactile-sim generate` instead")
     parser.add_argument("--frames", type=whole_number_argument(3, "frames", " (a train/val/test split needs 3)"),
                         help="use only the first N frames of the scene or dataset")
     parser.add_argument("--epochs", type=int, default=train.max_epochs,
@@ -414,7 +426,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fusion-rank", type=int, default=model.fusion_rank, help="0: dense fusion matrix")
     parser.add_argument("--feature-activation", choices=list(FEATURE_ACTIVATIONS), default=model.feature_activation,
                         help="of the fully connected layers (default %(default)s)")
-    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--out", required=True, type=named("a directory"), help="output directory")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -422,12 +434,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def common(p, with_model: bool, threads: int = 1):
-        p.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
+        p.add_argument("--sensor", type=named("a sensor description YAML"),
+                       help="sensor description YAML (default: the installed config/sensor.yaml)")
         p.add_argument("--threads", type=whole_number_argument(1, "threads", maximum=MAX_THREADS), default=threads,
                        help=f"CPU threads, 1 to {MAX_THREADS} (default %(default)s)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         if with_model:
-            p.add_argument("--model", help="model directory (default: the shipped model)")
+            p.add_argument("--model", type=named("a model directory"), help="model directory (default: the shipped "
+                           "model)")
 
     p = sub.add_parser("train", help="train a model from the simulator or a dataset, export it, evaluate it")
     common(p, False, threads=os.cpu_count() or 1)
@@ -442,9 +456,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="; ".join(f"{b}: {', '.join(ps)}" for b, ps in BACKENDS.items()) + " (default %(default)s)")
     data = p.add_mutually_exclusive_group()
-    data.add_argument("--scene", help="evaluate on this scene (name or YAML file) instead of the test split of the "
+    data.add_argument("--scene", type=named("a scene or a YAML file"),
+                      help="evaluate on this scene (name or YAML file) instead of the test split of the "
                       "model's training data")
-    data.add_argument("--dataset", help="evaluate on every frame of this dataset (the first N with --frames; "
+    data.add_argument("--dataset", type=named("a data set directory"),
+                      help="evaluate on every frame of this dataset (the first N with --frames; "
                       "--split does not apply)")
     p.add_argument("--split", choices=["all", "test"],
                    help="with --scene only: every frame (the default), or its held-out 20 %% drawn from its seed")
@@ -452,7 +468,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="only the first N frames of each data set: of the test split, the scene (or its --split), "
                    "the dataset and each hard case")
     p.add_argument("--hard-cases", action="store_true", help="also the hard-case scenes the training never saw")
-    p.add_argument("--out", help="write metrics.json and Fz map PNGs here (not into a model directory, whose "
+    p.add_argument("--out", type=named("a directory"),
+                   help="write metrics.json and Fz map PNGs here (not into a model directory, whose "
                    "metrics.json they would replace)")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
     p.add_argument("--contact-level", type=contact_level_argument, default=CONTACT_LEVEL_N, metavar="NEWTONS",

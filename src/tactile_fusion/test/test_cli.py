@@ -511,6 +511,20 @@ def test_bad_arguments_are_refused_with_an_error_line_before_anything_runs(capsy
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(("command", "option", "what"), [
+    ("eval", "--dataset", "a data set directory"), ("eval", "--scene", "a scene or a YAML file"),
+    ("eval", "--model", "a model directory"), ("bench", "--model", "a model directory"),
+    ("train", "--sensor", "a sensor description YAML"), ("recalibrate", "--out", "a directory"),
+])
+def test_an_empty_file_or_directory_name_is_refused(capsys, tmp_path, command, option, what):
+    """It was taken as no option: `eval --dataset ""` evaluated the default test set without a word (found in
+    review)."""
+    needs_out = command in ("train", "recalibrate") and option != "--out"
+    line = refusal(capsys, command, *(["--out", tmp_path / "out"] if needs_out else []), option, "")
+    assert line == f"tactile-fusion {command}: error: argument {option}: must name {what}, got ''"
+    assert not (tmp_path / "out").exists()
+
+
 def test_too_few_training_frames_for_batch_normalisation_is_an_error_line(capsys, tmp_path, one_camera_sensor):
     """3 frames (the fewest a split takes) leave one training frame: a one-camera model needs two. It was a plain
     ValueError, a traceback."""
