@@ -266,29 +266,6 @@ def test_the_simulated_cameras_play_from_the_first_frame_once_subscribed_then_sa
     assert after_the_end == []
 
 
-@pytest.mark.system
-def test_with_a_bundle_node_running_the_simulated_scene_plays_once_the_bundles_are_subscribed(collect, tmp_path):
-    """The fusion node subscribes to bundles once its model is loaded, seconds after a launch file starts it with the
-    rest: a scene that played on the bundle node's subscription alone gave it bundles of the press for its reference.
-    Here the probe is the fusion node; it subscribes 2 s after the scene could have played, and misses none of it."""
-    scene = tmp_path / "short.yaml"
-    scene.write_text("name: short\nseed: 1\ntimeline:\n  - rest: {frames: 8}\n")
-    specs = [NodeSpec("tactile_fusion", "bundle_node", "bundles", {"sensor_config": CONFIG}),
-             NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
-                      {"sensor_config": CONFIG, "scene": str(scene), "loop": False, "rate_hz": 40})]
-    processes = [start_node(spec, tmp_path) for spec in specs]
-    try:
-        wait_for_log(tmp_path / "sim_once.log", "simulating scene", timeout_s=20.0)
-        time.sleep(2.0)
-        unheard = (tmp_path / "sim_once.log").read_text()
-        bundles = collect(ImageBundle, "/tactile/image_bundle", seconds=20.0, until=lambda got: len(got) >= 7)
-    finally:
-        codes = stop_nodes(processes)
-    assert "playing" not in unheard, unheard
-    assert codes == [0, 0] and len(bundles) >= 7, (tmp_path / "sim_once.log").read_text()
-    assert bundles[0].sequence == 0  # the first bundle of the scene
-
-
 class FakeCameras:
     """Four cameras as the probe node: publishes each camera's frame k stamped `start_s + k * PERIOD_S` (plus a
     small per-camera offset), one frame every PERIOD_S of wall time, spinning the probe in between."""

@@ -9,14 +9,12 @@ publishes nothing for that frame, exactly like a broken camera. With `loop` fals
 scene ended and publishes nothing more (it keeps running). The scene's ground truth goes out on
 `/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistribution) for live evaluation.
 
-The scene plays from its first frame once a camera's image topic has a subscriber and, where a bundle node publishes
-bundles, once the bundles have a subscriber too (the fusion node subscribes when its model is loaded, seconds after it
-starts); until then the node publishes nothing. Frames nobody receives are lost for good, and a scene's first frames
-matter: the fusion node takes its reference frames from the first bundles, which must show the surface at rest.
-Started at once, the scene ran on while DDS discovery connected the bundle node, and under load the demo's 2 s of rest
-were over before the first bundle reached the fusion node: its reference showed a press, and the estimates were off by
-0.25-0.37 N in total (found in review). A launch file starts every node at once, and the fusion node's model takes
-longer still.
+The scene plays from its first frame once a camera's image topic has a subscriber; until then the node publishes
+nothing. Frames nobody receives are lost for good, and a scene's first frames matter: the fusion node takes its
+reference frames from the first bundles, which must show the surface at rest. Started at once, the scene ran on while
+DDS discovery connected the bundle node, and under load the demo's 2 s of rest were over before the first bundle
+reached the fusion node: its reference showed a press, and the estimates were off by 0.25-0.37 N in total (found in
+review).
 """
 
 from __future__ import annotations
@@ -39,7 +37,7 @@ from tactile_conversions.parameters import (
     text,
 )
 from tactile_conversions.ros_time import seconds_to_time
-from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
 from tactile_description import FORCE_COMPONENTS, SensorConfigError
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import SceneError, Simulator, load_scene
@@ -71,13 +69,6 @@ class SimCameraNode(Node):
                                f"{frame_rate_hz:.1f} Hz for cameras {list(self.sensor.camera_ids)}, from its first "
                                "frame once their images are subscribed")
 
-    def listened(self) -> bool:
-        """Whether the scene may play: a camera's images are subscribed and, where bundles are published, so are they
-        (module docstring)."""
-        if not any(publisher.get_subscription_count() for publisher in self.image_pubs.values()):
-            return False
-        return not self.count_publishers(BUNDLE_TOPIC) or self.count_subscribers(BUNDLE_TOPIC) > 0
-
     def declare_stamp_jitter(self, frame_rate_hz: float) -> float:
         """The `stamp_jitter_s` parameter: from 0 to one frame period.
 
@@ -97,7 +88,7 @@ class SimCameraNode(Node):
 
     def publish_frame(self) -> None:
         if not self.playing:
-            if not self.listened():
+            if not any(publisher.get_subscription_count() for publisher in self.image_pubs.values()):
                 return
             self.playing = True
             self.get_logger().info(f"images subscribed: playing scene {self.scene_name!r} from its first frame")
