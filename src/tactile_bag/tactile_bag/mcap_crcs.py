@@ -95,25 +95,50 @@ def check_summary_crc(path: str | Path) -> None:
     path = Path(path)
     try:
         with path.open("rb") as file:
-            footer_start = os.fstat(file.fileno()).st_size - _FOOTER_RECORD.size - len(MCAP_MAGIC)
-            if footer_start < len(MCAP_MAGIC):
+            try:
+                footer = _read_footer(file, os.fstat(file.fileno()).st_size, path)
+            except McapError:
                 return
-            file.seek(footer_start)
-            footer = file.read(_FOOTER_RECORD.size + len(MCAP_MAGIC))
-            opcode, length, summary_start, _, stored = _FOOTER_RECORD.unpack_from(footer)
-            is_footer = (opcode, length) == (_FOOTER, _FOOTER_RECORD.size - _RECORD_HEAD.size)
-            if footer[_FOOTER_RECORD.size:] != MCAP_MAGIC or not is_footer or not stored:
+            if not footer.summary_crc:
                 return
-            start = summary_start or footer_start  # without a summary, the CRC is of the Footer's fields alone
-            if not len(MCAP_MAGIC) <= start <= footer_start:
-                raise McapError(f"{path} is damaged: its Footer puts the summary at byte {summary_start}, outside the "
-                                f"file's {footer_start} bytes before the Footer")
-            computed = _crc_of(file, footer_start + _FOOTER_CRC_AT - start, 0, at=start)
+            start = footer.summary_start or footer.start  # without a summary, the CRC is of the Footer's fields alone
+            if not len(MCAP_MAGIC) <= start <= footer.start:
+                raise McapError(f"{path} is damaged: its Footer puts the summary at byte {footer.summary_start}, "
+                                f"outside the file's {footer.start} bytes before the Footer")
+            computed = _summary_crc(file, footer, start)
     except OSError as exc:
         raise McapError(f"{path}: cannot check its summary: {exc}") from exc
-    if computed != stored:
+    if computed != footer.summary_crc:
         raise McapError(f"{path} is damaged: its summary (the index of its topics and messages) has the CRC-32 "
-                        f"{stored:#010x} in its Footer, its bytes give {computed:#010x}")
+                        f"{footer.summary_crc:#010x} in its Footer, its bytes give {computed:#010x}")
+
+
+class Footer(NamedTuple):
+    """An MCAP file's Footer record, before its closing magic."""
+
+    start: int  # the record's byte offset
+    summary_start: int  # 0: no summary section
+    summary_crc: int  # as stored; 0: "not available"
+
+
+def _read_footer(file: BinaryIO, size: int, path: Path, data_end: int = len(MCAP_MAGIC)) -> Footer:
+    """The Footer of a file of `size` bytes whose data section ends at byte `data_end`; McapError for a file that does
+    not end with a Footer record and the magic after it."""
+    start = size - _FOOTER_RECORD.size - len(MCAP_MAGIC)
+    file.seek(max(start, 0))
+    footer = file.read(_FOOTER_RECORD.size + len(MCAP_MAGIC))
+    if start < data_end or footer[_FOOTER_RECORD.size:] != MCAP_MAGIC:
+        raise McapError(f"{path} is truncated or damaged: it does not end with an MCAP Footer record and the magic")
+    opcode, length, summary_start, _, summary_crc = _FOOTER_RECORD.unpack_from(footer)
+    if (opcode, length) != (_FOOTER, _FOOTER_RECORD.size - _RECORD_HEAD.size):
+        raise McapError(f"{path} is damaged: the record before its closing magic is not an MCAP Footer")
+    return Footer(start, summary_start, summary_crc)
+
+
+def _summary_crc(file: BinaryIO, footer: Footer, start: int) -> int:
+    """The CRC-32 that the Footer's summary_crc holds: of the bytes from `start` (the summary section's, as the
+    Footer's CRC counts it) up to that field."""
+    return _crc_of(file, footer.start + _FOOTER_CRC_AT - start, 0, at=start)
 
 
 def _plan_mcap_crcs(file: BinaryIO, path: Path) -> tuple[int, list[list[Patch]], int, int]:
@@ -159,19 +184,11 @@ def _plan_mcap_crcs(file: BinaryIO, path: Path) -> tuple[int, list[list[Patch]],
             data_crc = _crc_of(file, length, data_crc)
         offset = end
 
-    footer_start = size - _FOOTER_RECORD.size - len(MCAP_MAGIC)
-    file.seek(max(footer_start, 0))
-    footer = file.read(_FOOTER_RECORD.size + len(MCAP_MAGIC))
-    if footer_start < offset or footer[_FOOTER_RECORD.size:] != MCAP_MAGIC:
-        raise McapError(f"{path} is truncated or damaged: it does not end with an MCAP Footer record and the magic")
-    opcode, length, summary_start, _, stored_summary_crc = _FOOTER_RECORD.unpack_from(footer)
-    if (opcode, length) != (_FOOTER, _FOOTER_RECORD.size - _RECORD_HEAD.size):
-        raise McapError(f"{path} is damaged: the record before its closing magic is not an MCAP Footer")
-    if summary_start not in (0, offset):
-        raise McapError(f"{path} is damaged: its Footer puts the summary at byte {summary_start}, the data section "
-                        f"ends at byte {offset}")
-    file.seek(offset)  # the summary section, as the Footer's CRC counts it: up to the Footer's summary_crc field
-    summary_crc = _crc_of(file, footer_start + _FOOTER_CRC_AT - offset, 0)
+    footer = _read_footer(file, size, path, data_end=offset)
+    if footer.summary_start not in (0, offset):
+        raise McapError(f"{path} is damaged: its Footer puts the summary at byte {footer.summary_start}, the data "
+                        f"section ends at byte {offset}")
+    summary_crc = _summary_crc(file, footer, offset)
 
     final_patches = []
     if stored_data_crc != data_crc:
@@ -179,11 +196,11 @@ def _plan_mcap_crcs(file: BinaryIO, path: Path) -> tuple[int, list[list[Patch]],
             raise McapError(f"{path} is damaged: its data section has the CRC-32 {stored_data_crc:#010x} in its Data "
                             f"End record, its bytes give {data_crc:#010x}")
         final_patches.append((data_end + _RECORD_HEAD.size, stored_data_crc, data_crc))
-    if stored_summary_crc != summary_crc:
-        if stored_summary_crc:
-            raise McapError(f"{path} is damaged: its summary has the CRC-32 {stored_summary_crc:#010x} in its Footer, "
+    if footer.summary_crc != summary_crc:
+        if footer.summary_crc:
+            raise McapError(f"{path} is damaged: its summary has the CRC-32 {footer.summary_crc:#010x} in its Footer, "
                             f"its bytes give {summary_crc:#010x}")
-        final_patches.append((footer_start + _FOOTER_CRC_AT, 0, summary_crc))
+        final_patches.append((footer.start + _FOOTER_CRC_AT, 0, summary_crc))
     return chunks, [chunk_patches, final_patches], data_crc, summary_crc
 
 
