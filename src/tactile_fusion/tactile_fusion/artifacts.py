@@ -17,8 +17,7 @@ import hashlib
 import json
 import math
 import os
-import pickle
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import torch
@@ -88,14 +87,9 @@ def write_torch_file(path: Path, data: dict, retry: str) -> None:
     Saved to model.partial (PARTIAL_SUFFIX in place of the suffix), not into a buffer: torch names the folder inside
     its zip file after the file, "model" as in the shipped model.pt ("archive" from a buffer), so that `make model`
     still writes the shipped model.pt to the byte."""
-    partial = path.with_suffix(PARTIAL_SUFFIX)
     try:
-        torch.save(data, partial)
-        with open(partial, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(partial, path)
+        replace_written(path, path.with_suffix(PARTIAL_SUFFIX), lambda partial: torch.save(data, partial))
     except (OSError, RuntimeError) as exc:  # torch's writer raises a RuntimeError on a full disk
-        discard(partial)
         raise unwritable(path, exc, retry) from exc
 
 
@@ -230,13 +224,20 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
     state_path = Path(model_dir) / STATE_DICT
     if not state_path.exists():
         raise ModelFileError(f"{model_dir}: {STATE_DICT} is missing; retrain or re-copy the model directory")
+
+    def unreadable(reason: str) -> ModelFileError:
+        return ModelFileError(f"{state_path} cannot be read or does not fit {MODEL_JSON} ({reason}): the file is "
+                              f"damaged or of another model; {REPLACE_MODEL}")
+
     try:
-        try:
-            state = torch.load(state_path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            # torch's safe unpickler raises whatever the bytes lead it to (KeyError, IndexError, struct.error, ...
-            # for a file of text: found in review); each is a file that cannot be read.
-            raise RuntimeError(f"{type(exc).__name__}: {one_line(exc)}") from exc
+        state = torch.load(state_path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        # torch's safe unpickler raises whatever the bytes lead it to (KeyError, IndexError, struct.error, ... for a
+        # file of text: found in review; OSError for a directory; a bare EOFError for an empty file): each is a file
+        # that cannot be read.
+        text = one_line(exc)
+        raise unreadable(f"{type(exc).__name__}: {text}" if text else type(exc).__name__) from exc
+    try:
         if not isinstance(state, Mapping):  # load_state_dict's TypeError would not say which file
             raise RuntimeError(f"it holds a {type(state).__name__}, not a state dict")
         state = dict(state)
@@ -250,10 +251,8 @@ def load_model(model_dir: str | Path) -> ForceFusionNet:
         mismatches = mismatched_fields(named, described, "the weights")
         if not mismatches:
             model.load_state_dict(state)
-    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, TypeError) as exc:  # OSError: a directory
-        reason = one_line(exc) or type(exc).__name__  # an empty file: a bare EOFError
-        raise ModelFileError(f"{state_path} cannot be read or does not fit {MODEL_JSON} ({reason}): the file is "
-                             f"damaged or of another model; {REPLACE_MODEL}") from exc
+    except (RuntimeError, TypeError) as exc:
+        raise unreadable(one_line(exc)) from exc
     if mismatches:
         raise ModelFileError(f"{state_path} holds the weights of another model than its {MODEL_JSON} describes "
                              f"({'; '.join(mismatches)}): files of two models are mixed, or {MODEL_JSON} was edited "
@@ -317,18 +316,22 @@ PARTIAL_SUFFIX = ".partial"
 
 
 def replace_file(path: Path, data: bytes) -> None:
-    """Write `data` to `path` whole or not at all: to a file beside it (PARTIAL_SUFFIX), synced to disk and renamed over
-    it, so that a write that fails (a full disk) or is cut off leaves the file before as it was. An OSError passes
-    (the partial file removed where it can be)."""
-    partial = path.with_name(path.name + PARTIAL_SUFFIX)
+    """Write `data` to `path` whole or not at all, through a file beside it (PARTIAL_SUFFIX; replace_written). An
+    OSError passes (the partial file removed where it can be)."""
+    replace_written(path, path.with_name(path.name + PARTIAL_SUFFIX), lambda partial: partial.write_bytes(data))
+
+
+def replace_written(path: Path, partial: Path, write: Callable[[Path], None]) -> None:
+    """`write(partial)`, then `partial` synced to disk and renamed over `path`, so that a write that fails (a full
+    disk) or is cut off leaves the file before as it was. What `write` raises passes, the partial file removed where
+    it can be."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(partial, "wb") as f:
-            f.write(data)
-            f.flush()
+        write(partial)
+        with open(partial, "rb") as f:
             os.fsync(f.fileno())
         os.replace(partial, path)
-    except OSError:
+    except Exception:
         discard(partial)
         raise
 

@@ -23,6 +23,7 @@ from tactile_fusion.artifacts import (
     model_fields,
     save_model,
     write_json,
+    write_torch_file,
 )
 from tactile_fusion.camera_out import rest_view, with_cameras_at_rest
 from tactile_fusion.export import export_onnx, fusion_node_names, quantize_int8
@@ -488,6 +489,15 @@ def test_weights_that_cannot_be_written_are_one_error_and_leave_no_model_behind(
     save_model(model, target)
     assert sorted(p.name for p in target.iterdir()) == [MODEL_JSON, STATE_DICT]
     assert torch.equal(load_model(target).fusion.expand.weight, model.fusion.expand.weight)
+
+
+def test_a_torch_file_is_written_into_a_folder_that_does_not_exist_yet(tmp_path):
+    """_save_checkpoint made the checkpoint's folder; once it wrote through write_torch_file, that failed there
+    ("Parent directory ... does not exist", found in review of the change)."""
+    checkpoint = tmp_path / "not" / "yet" / "checkpoint.pt"
+    write_torch_file(checkpoint, {"weights": torch.ones(2)}, "run again")
+    assert torch.equal(torch.load(checkpoint)["weights"], torch.ones(2))
+    assert [p.name for p in checkpoint.parent.iterdir()] == ["checkpoint.pt"]
 
 
 def test_non_finite_numbers_are_written_to_json_as_null(tmp_path):
