@@ -135,6 +135,11 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     # rclpy's typed declarations refused these with an InvalidParameterTypeException traceback naming no node
     (SimCameraNode, {"loop": "0"}, "tactile_sim_cameras: parameter loop must be a bool (true or false), got 0"),
     (SimCameraNode, {"scene": "3"}, "tactile_sim_cameras: parameter scene must be a string, got 3"),
+    # a name rcl cannot expand would have raised in the timer, at the first frame
+    (SimCameraNode, {"wait_for_subscriber": "'no topic'"}, "tactile_sim_cameras: parameter wait_for_subscriber: topic "
+                                                           "name 'no topic' is invalid"),
+    (SimCameraNode, {"wait_for_subscriber": "a//b"}, "tactile_sim_cameras: parameter wait_for_subscriber: Invalid "
+                                                     "topic name"),
     (CameraNode, {"loop": "'no'"}, "tactile_camera: parameter loop must be a bool (true or false), got 'no'"),
     (CameraNode, {"camera_id": "3"}, "tactile_camera: parameter camera_id must be a string, got 3"),
     (CameraNode, {"camera_id": "cam9"}, "tactile_camera: parameter camera_id must name a camera of the sensor "
@@ -264,6 +269,34 @@ def test_the_simulated_cameras_play_from_the_first_frame_once_subscribed_then_sa
     assert len(images) == 8, log  # from the first frame: the subscriber lost none
     assert log.count(f"scene '{scene}' ended (8 frames; loop false): publishing nothing more") == 1, log
     assert after_the_end == []
+
+
+@pytest.mark.system
+def test_the_simulated_scene_waits_for_a_subscriber_of_wait_for_subscriber_and_loses_none_of_its_frames(collect,
+                                                                                                     tmp_path):
+    """The sensor graph's cameras wait for the fusion node, which subscribes to bundles once its model is loaded,
+    seconds after a launch file starts every node at once: a scene that played on the bundle node's subscription
+    alone gave the fusion node bundles of the press for its reference. Here the probe is the fusion node; it
+    subscribes 2 s after the scene could have played, and misses none of it."""
+    scene = tmp_path / "short.yaml"
+    scene.write_text("name: short\nseed: 1\ntimeline:\n  - rest: {frames: 8}\n")
+    specs = [NodeSpec("tactile_fusion", "bundle_node", "bundles", {"sensor_config": CONFIG}),
+             NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
+                      {"sensor_config": CONFIG, "scene": str(scene), "loop": False, "rate_hz": 40,
+                       "wait_for_subscriber": "/tactile/image_bundle"})]
+    processes = [start_node(spec, tmp_path) for spec in specs]
+    try:
+        wait_for_log(tmp_path / "sim_once.log", "waiting for a subscriber of /tactile/image_bundle", timeout_s=20.0)
+        time.sleep(2.0)
+        unheard = (tmp_path / "sim_once.log").read_text()
+        bundles = collect(ImageBundle, "/tactile/image_bundle", seconds=20.0, until=lambda got: len(got) >= 7)
+    finally:
+        codes = stop_nodes(processes)
+    log = (tmp_path / "sim_once.log").read_text()
+    assert "playing scene" not in unheard, unheard
+    assert "once their images and /tactile/image_bundle are subscribed" in log
+    assert codes == [0, 0] and len(bundles) >= 7, log
+    assert bundles[0].sequence == 0  # the first bundle of the scene
 
 
 class FakeCameras:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tactile_conversions.topics import BUNDLE_TOPIC
 from tactile_description import SensorDescription
 from tactile_description.yaml_fields import load_yaml_file
 
@@ -64,8 +65,10 @@ def sensor_graph(sensor: SensorDescription, sensor_config: str, source: str = "s
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
     common = {"sensor_config": sensor_config}
     if source == "sim":
+        # The scene plays once the fusion node hears the bundles (it subscribes after loading its model), so that its
+        # reference frames are the scene's opening rest: see tactile_camera_driver.sim_camera_node.
         cameras = [NodeSpec("tactile_camera_driver", "sim_camera_node", "tactile_sim_cameras",
-                            {**common, "scene": scene})]
+                            {**common, "scene": scene, "wait_for_subscriber": BUNDLE_TOPIC})]
     else:
         if not camera_sources_file:
             raise ValueError("source 'cameras' needs a camera sources file (camera_id -> OpenCV source)")

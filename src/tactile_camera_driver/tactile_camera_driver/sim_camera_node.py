@@ -14,12 +14,16 @@ nothing. Frames nobody receives are lost for good, and a scene's first frames ma
 reference frames from the first bundles, which must show the surface at rest. Started at once, the scene ran on while
 DDS discovery connected the bundle node, and under load the demo's 2 s of rest were over before the first bundle
 reached the fusion node: its reference showed a press, and the estimates were off by 0.25-0.37 N in total (found in
-review).
+review). Where a later node must hear the scene from its start, `wait_for_subscriber` names a topic that must have a
+subscriber too: the sensor graph (sensor.launch.py) names the bundles, which the fusion node subscribes only once its
+model is loaded, seconds after the launch file starts every node at once. Left empty (the default), a graph without
+such a node, cameras and a bundle node recorded to a bag, plays as soon as its images are heard.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -54,6 +58,7 @@ class SimCameraNode(Node):
         self.sensor = sensor_description(self)
         frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
         self.stamp_jitter_s = self.declare_stamp_jitter(frame_rate_hz)
+        self.awaited_topic = self.declare_awaited_topic()
         with refused_as(self, "parameter sensor_config", SensorConfigError):
             self.simulator = Simulator(self.sensor)  # refuses what only the simulator needs (where the particles are)
         with refused_as(self, "parameter scene", SceneError):
@@ -63,11 +68,31 @@ class SimCameraNode(Node):
         self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)
                            for c in self.sensor.camera_ids}
         self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
-        self.playing = False  # until an image topic has a subscriber (module docstring)
+        self.playing = False  # until its listeners are there (module docstring, `listened`)
         self.timer = self.create_timer(1.0 / frame_rate_hz, self.publish_frame)
+        awaited = f" and {self.awaited_topic}" if self.awaited_topic else ""
         self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at "
                                f"{frame_rate_hz:.1f} Hz for cameras {list(self.sensor.camera_ids)}, from its first "
-                               "frame once their images are subscribed")
+                               f"frame once their images{awaited} are subscribed")
+
+    def declare_awaited_topic(self) -> str:
+        """The `wait_for_subscriber` parameter: a topic name, or "" for none (module docstring)."""
+        topic = text(self, "wait_for_subscriber", "")
+        if topic:
+            with refused_as(self, "parameter wait_for_subscriber", ValueError, NameValidationException):
+                self.count_subscribers(topic)  # rcl's check of the name: a malformed one raises here, not later
+        return topic
+
+    def listened(self) -> bool:
+        """Whether the scene may play: a camera's images are subscribed, and so is `wait_for_subscriber`'s topic."""
+        if not any(publisher.get_subscription_count() for publisher in self.image_pubs.values()):
+            return False
+        if self.awaited_topic and not self.count_subscribers(self.awaited_topic):
+            self.get_logger().info(f"images subscribed; waiting for a subscriber of {self.awaited_topic} "
+                                   "(parameter wait_for_subscriber) before playing the scene",
+                                   throttle_duration_sec=10.0)
+            return False
+        return True
 
     def declare_stamp_jitter(self, frame_rate_hz: float) -> float:
         """The `stamp_jitter_s` parameter: from 0 to one frame period.
@@ -88,7 +113,7 @@ class SimCameraNode(Node):
 
     def publish_frame(self) -> None:
         if not self.playing:
-            if not any(publisher.get_subscription_count() for publisher in self.image_pubs.values()):
+            if not self.listened():
                 return
             self.playing = True
             self.get_logger().info(f"images subscribed: playing scene {self.scene_name!r} from its first frame")
