@@ -13,10 +13,44 @@ from tactile_description.value_checks import is_number
 
 # A shell reports a command killed by SIGPIPE as 128 + its number; a command that stops on a closed pipe says so.
 CLOSED_PIPE_EXIT = 128 + signal.SIGPIPE
-#: The same for a command that a Ctrl-C (SIGINT) ends, where it says so in one line instead of a traceback.
-CTRL_C_EXIT = 128 + signal.SIGINT
 #: The exit status of a command refused for its input (argparse's too).
 INPUT_ERROR_EXIT = 2
+
+
+class StopSignal(BaseException):
+    """A Ctrl-C (SIGINT) or SIGTERM that `stop_signals_raised` turned into an exception in the main thread. A
+    BaseException, as KeyboardInterrupt is, so that no `except Exception` swallows it."""
+
+    def __init__(self, number: int) -> None:
+        super().__init__(signal.Signals(number).name)
+        self.number = number
+
+    @property
+    def exit_status(self) -> int:
+        """What a shell reports for a command the signal killed: 128 + its number."""
+        return 128 + self.number
+
+    @property
+    def named(self) -> str:
+        return "Ctrl-C" if self.number == signal.SIGINT else signal.Signals(self.number).name
+
+
+@contextlib.contextmanager
+def stop_signals_raised():
+    """Raise StopSignal for a Ctrl-C or SIGTERM while the block runs; Python's handlers are restored afterwards.
+
+    By default a SIGTERM (`kill`, a job scheduler's time limit) ends Python at once: no `finally` block or clean-up
+    runs, so a command stopped so left what it had half made behind (an empty --out). Raised as an exception, it
+    unwinds like a Ctrl-C, and the command can say in one line what it leaves."""
+    def raise_stop(number, _frame):
+        raise StopSignal(number)
+
+    previous = {number: signal.signal(number, raise_stop) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 def error_exit(program: str, error: BaseException | str) -> int:

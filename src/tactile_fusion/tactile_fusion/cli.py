@@ -30,7 +30,13 @@ from pathlib import Path
 import torch
 
 from tactile_description import SensorConfigError, left_out_components, load_sensor
-from tactile_description.command_line import error_exit, stops_quietly_on_closed_pipe, whole_number_argument
+from tactile_description.command_line import (
+    StopSignal,
+    error_exit,
+    stop_signals_raised,
+    stops_quietly_on_closed_pipe,
+    whole_number_argument,
+)
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     MODEL_JSON,
@@ -512,11 +518,24 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        with _new_out_removed_on_failure(getattr(args, "out", None)):
+        with stop_signals_raised(), _new_out_removed_on_failure(getattr(args, "out", None)):
             return args.func(args)
     except (SensorConfigError, ModelFileError, DatasetMismatchError, DatasetError, FrameDataError, SceneError,
             InputError, SettingsError, CheckpointMismatchError, FloatingPointError) as exc:
         return error_exit(f"tactile-fusion {args.command}", exc)
+    except StopSignal as stop:  # Ctrl-C or SIGTERM: one line saying what is left, not a traceback
+        print(f"tactile-fusion {args.command}: stopped by {stop.named}{_left_behind(args)}", file=sys.stderr)
+        return stop.exit_status
+
+
+def _left_behind(args) -> str:
+    """What a stopped command leaves that matters: train's checkpoints, which `--resume` continues from."""
+    from tactile_fusion.pipeline import CHECKPOINTS
+
+    if args.command != "train" or not any(Path(args.out).glob(CHECKPOINTS)):
+        return ""
+    return (f"; the checkpoints in {args.out} continue the training where it stopped: run the same command with "
+            "--resume")
 
 
 if __name__ == "__main__":

@@ -4,8 +4,10 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -431,6 +433,44 @@ def test_resuming_from_a_checkpoint_of_another_model_is_refused_with_a_clear_err
                  *TINY, check=False)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "tactile-fusion train: error: checkpoint" in result.stderr and "delete the checkpoint" in result.stderr
+
+
+def stopped_train(out: Path, stop: signal.Signals, when, *args) -> subprocess.CompletedProcess:
+    """`tactile-fusion train --out OUT ARGS`, sent `stop` once `when()` holds (polled; 120 s at most). The child gets
+    the default SIGINT disposition, so that Python installs its Ctrl-C handler even where this test runs as a
+    background job, which starts with SIGINT ignored."""
+    process = subprocess.Popen([sys.executable, "-m", "tactile_fusion.cli", "train", "--out", str(out), *args],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env=os.environ | {"PYTHONWARNINGS": "ignore"},
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while not when() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    process.send_signal(stop)
+    stdout, stderr = process.communicate(timeout=120)
+    return subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
+
+
+def test_a_sigterm_while_train_simulates_ends_it_in_one_line_and_removes_the_new_empty_out(tmp_path):
+    """Before: Python died at once, leaving the --out it had created empty and no word of why."""
+    out = tmp_path / "new" / "model"
+    result = stopped_train(out, signal.SIGTERM, out.exists, *TINY)  # the default scene's 46200 frames: a minute
+    assert result.returncode == 128 + signal.SIGTERM, result.stderr
+    assert result.stderr.strip().splitlines()[-1] == "tactile-fusion train: stopped by SIGTERM", result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "new").exists()
+
+
+def test_ctrl_c_during_training_says_the_checkpoints_resume_it(tmp_path):
+    """Before: Python's KeyboardInterrupt traceback, with no word that the run can go on."""
+    out = tmp_path / "model"
+    result = stopped_train(out, signal.SIGINT, lambda: any(out.glob("checkpoint_*.pt")), "--frames", "200",
+                           "--epochs", "500", "--patience", "500", *TINY)
+    assert result.returncode == 128 + signal.SIGINT, result.stderr
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"tactile-fusion train: stopped by Ctrl-C; the checkpoints in {out} continue the training where it stopped: "
+        "run the same command with --resume"), result.stderr
+    checkpoint = torch.load(out / "checkpoint_end_to_end.pt", map_location="cpu", weights_only=False)
+    assert "Traceback" not in result.stderr and checkpoint["train_config"]["max_epochs"] == 500
 
 
 def test_a_model_for_another_sensor_is_refused(tiny_model):

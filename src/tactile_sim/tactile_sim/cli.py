@@ -17,8 +17,9 @@ import sys
 
 from tactile_description import SensorConfigError, load_sensor
 from tactile_description.command_line import (
-    CTRL_C_EXIT,
+    StopSignal,
     error_exit,
+    stop_signals_raised,
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
@@ -129,15 +130,16 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         sensor = load_sensor(args.sensor)
-        {"press": _press, "generate": _generate, "render": _render, "bench": _bench}[args.command](args, sensor)
+        with stop_signals_raised():
+            {"press": _press, "generate": _generate, "render": _render, "bench": _bench}[args.command](args, sensor)
     except (SceneError, DatasetError, SensorConfigError, ValueError) as exc:
         return error_exit(f"tactile-sim {args.command}", exc)
     except BrokenPipeError:
         raise  # the reader went away: stops_quietly_on_closed_pipe ends the command as a shell tool does
-    except KeyboardInterrupt:  # Ctrl-C: one line and the shell's status for it, not a traceback
+    except StopSignal as stop:  # Ctrl-C or SIGTERM: one line and the shell's status for it, not a traceback
         stopped = "; the data set is left marked incomplete" if args.command == "generate" else ""
-        print(f"tactile-sim {args.command}: stopped by Ctrl-C{stopped}", file=sys.stderr)
-        return CTRL_C_EXIT
+        print(f"tactile-sim {args.command}: stopped by {stop.named}{stopped}", file=sys.stderr)
+        return stop.exit_status
     except OSError as exc:  # a file or directory that cannot be read or written (--out /dev/null/x, a full disk)
         problem = f"{exc.strerror or exc}: {exc.filename}" if exc.filename else exc
         return error_exit(f"tactile-sim {args.command}", problem)

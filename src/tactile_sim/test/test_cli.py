@@ -49,9 +49,11 @@ def test_generate_overwrite_refuses_a_directory_without_a_data_set(tmp_path, cap
     assert [f.name for f in tmp_path.iterdir()] == ["notes.txt"]
 
 
-def test_ctrl_c_stops_generate_in_one_line_with_the_data_set_left_incomplete(tmp_path):
-    """Before: Python's KeyboardInterrupt traceback. The child gets the default SIGINT disposition, so that Python
-    installs its Ctrl-C handler even where this test runs as a background job, which starts with SIGINT ignored."""
+@pytest.mark.parametrize("stop, named", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")])
+def test_ctrl_c_or_sigterm_stops_generate_in_one_line_with_the_data_set_left_incomplete(tmp_path, stop, named):
+    """Before: Python's KeyboardInterrupt traceback for a Ctrl-C, and for a SIGTERM nothing said at all. The child
+    gets the default SIGINT disposition, so that Python installs its Ctrl-C handler even where this test runs as a
+    background job, which starts with SIGINT ignored."""
     out = tmp_path / "ds"
     process = subprocess.Popen([sys.executable, "-m", "tactile_sim.cli", "generate", "--scene", "paper_grid", "--out",
                                 str(out), "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -59,10 +61,10 @@ def test_ctrl_c_stops_generate_in_one_line_with_the_data_set_left_incomplete(tmp
     deadline = time.monotonic() + 120
     while not (out / "meta.json").exists() and time.monotonic() < deadline:
         time.sleep(0.05)
-    process.send_signal(signal.SIGINT)
+    process.send_signal(stop)
     _, stderr = process.communicate(timeout=60)
-    assert process.returncode == 130, stderr
-    assert stderr.strip().splitlines()[-1] == "tactile-sim generate: stopped by Ctrl-C; the data set is left marked " \
+    assert process.returncode == 128 + stop, stderr
+    assert stderr.strip().splitlines()[-1] == f"tactile-sim generate: stopped by {named}; the data set is left marked " \
                                                "incomplete" and "Traceback" not in stderr, stderr
     with pytest.raises(DatasetError, match="is incomplete"):
         open_dataset(out)
