@@ -511,13 +511,18 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     if not isinstance(checkpoint, dict):
         raise CheckpointMismatchError(f"checkpoint {path} holds a {type(checkpoint).__name__}, not a checkpoint of "
                                       "tactile-fusion train; delete it to train its phase afresh")
+    malformed = _malformed_checkpoint(checkpoint)
+    if malformed:
+        raise CheckpointMismatchError(f"checkpoint {path} is not as tactile-fusion train writes one ({malformed}): it "
+                                      "was edited or damaged; delete it to train its phase afresh")
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
         raise CheckpointMismatchError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, "
                                       f"not {model.config.to_dict()}: resume with the same model settings or delete "
                                       "the checkpoint")
     # Checkpoints written before models could leave components out estimated all three.
-    components = checked_components(checkpoint.get("components", FORCE_COMPONENTS))
+    with _as_malformed(path, "its components"):
+        components = checked_components(checkpoint.get("components", FORCE_COMPONENTS))
     if components != model.components:
         raise CheckpointMismatchError(f"checkpoint {path} was written for a model estimating {list(components)}, but "
                                       f"this one estimates {list(model.components)} (the components its training "
@@ -554,6 +559,40 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     except RuntimeError as exc:
         raise CheckpointMismatchError(f"checkpoint {path} does not fit this model ({exc}); delete it to start "
                                       "afresh") from exc
-    optimizer.load_state_dict(checkpoint["optimizer"])
-    scheduler.load_state_dict(checkpoint["scheduler"])
+    with _as_malformed(path, "its optimizer or scheduler state"):
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        scheduler.load_state_dict(checkpoint["scheduler"])
     return checkpoint["state"]
+
+
+#: The entries of a checkpoint that every version of `_save_checkpoint` wrote, and of its training state ("components"
+#: and "data" came later; their absence has a meaning, see `_load_checkpoint`).
+CHECKPOINT_ENTRIES = {"model": dict, "model_config": dict, "optimizer": dict, "scheduler": dict, "train_config": dict,
+                      "state": dict}
+STATE_ENTRIES = {"epoch": int, "initial_val": float, "best_val": float, "best_epoch": int, "best_model": dict,
+                 "since_best": int, "history": list, "wall_time_s": float}
+
+
+def _malformed_checkpoint(checkpoint: dict) -> str:
+    """What makes a checkpoint unusable before anything is read from it (an entry missing or of the wrong kind, best
+    weights of another shape than its weights), or "" for none: a hand-edited or foreign one gave a KeyError
+    traceback. Whether its weights fit the model is checked after its model settings, which say why they do not."""
+    for entries, where in ((CHECKPOINT_ENTRIES, checkpoint), (STATE_ENTRIES, checkpoint.get("state", {}))):
+        for name, kind in entries.items():
+            value = where.get(name)
+            if not isinstance(value, kind) or isinstance(value, bool):
+                return f"{name} is {type(value).__name__ if name in where else 'missing'}, not {kind.__name__}"
+    shapes = [{name: tuple(getattr(t, "shape", ())) for name, t in weights.items()}
+              for weights in (checkpoint["model"], checkpoint["state"]["best_model"])]
+    return "its best weights are of another shape than its weights" if shapes[0] != shapes[1] else ""
+
+
+@contextmanager
+def _as_malformed(path: Path, what: str):
+    """Entries that only their use can check, refused as CheckpointMismatchError naming `what`."""
+    try:
+        yield
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise CheckpointMismatchError(f"checkpoint {path} is not as tactile-fusion train writes one ({what}: "
+                                      f"{one_line(exc)}): it was edited or damaged; delete it to train its phase "
+                                      "afresh") from exc

@@ -192,6 +192,32 @@ def test_a_damaged_checkpoint_is_refused_saying_what_to_do(frames, tiny_config, 
         fit(model, train, val, TrainConfig(max_epochs=1, batch_size=8), checkpoint_path=checkpoint, resume=True)
 
 
+def _without_a_weight(saved):
+    saved["state"]["best_model"].popitem()
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda saved: saved.pop("train_config"), r"train_config is missing, not dict"),
+    (lambda saved: saved.update(components=["fq"]), r"its components: components must be distinct names"),
+    (lambda saved: saved["state"].update(epoch="1"), r"epoch is str, not int"),
+    (lambda saved: saved["state"].update(best_val=True), r"best_val is bool, not float"),
+    (_without_a_weight, r"its best weights are of another shape than its weights"),
+    (lambda saved: saved["optimizer"].update(param_groups=[]), r"its optimizer or scheduler state: .*parameter group"),
+])
+def test_a_hand_edited_checkpoint_is_refused_saying_what_is_wrong(frames, tiny_config, tmp_path, edit, message):
+    """Before: a KeyError, ValueError or TypeError traceback, or (a weight gone from the best weights) a RuntimeError
+    at the end of the phase."""
+    checkpoint = tmp_path / "checkpoint.pt"
+    config = TrainConfig(max_epochs=2, batch_size=8)
+    checkpoint_as_written_then(frames, tiny_config, config, checkpoint, lambda saved: None)
+    saved = torch.load(checkpoint, weights_only=False)
+    edit(saved)
+    torch.save(saved, checkpoint)
+    with pytest.raises(CheckpointMismatchError, match=f"checkpoint {checkpoint} is not as tactile-fusion train writes "
+                                                      f"one \\({message}.*\\): it was edited or damaged; delete it"):
+        trained(frames, tiny_config, config, checkpoint_path=checkpoint, resume=True)
+
+
 def test_resuming_a_model_with_another_activation_is_refused(frames, tiny_config, tmp_path):
     """Same weight shapes, another function: load_state_dict alone would accept the checkpoint."""
     checkpoint = tmp_path / "checkpoint.pt"
