@@ -18,13 +18,21 @@ import yaml
 from tactile_description.value_checks import is_number, is_whole_number
 
 
+#: The most values (scalars, lists and mappings, each alias counted as often as it is used) a YAML file of the stack
+#: may expand to: the largest shipped file has a few hundred. Ten aliases of ten aliases, nine levels deep, are a
+#: 600-byte file of 10**9 values, which any walk over them (a check, an error message's repr) runs out of memory on.
+MAX_YAML_VALUES = 1_000_000
+
+
 class YamlLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, which also reads YAML 1.2 floats such as `1e-3`, `5e-1`, `1e3` and `1.5e3` as floats.
+    """PyYAML's safe loader, which reads numbers as YAML 1.2 does.
 
     PyYAML follows YAML 1.1, whose float needs a dot and a signed exponent: it reads `1e-3` as the string "1e-3",
     which every number check then refuses with a confusing message. The added resolver needs a dot or an exponent,
     so that `10` stays an integer (counts are checked to be whole numbers); YAML 1.1's floats (`.inf`, `.nan`,
-    `1_000.5`) still resolve through PyYAML's own resolver, which this one is added after.
+    `1_000.5`) still resolve through PyYAML's own resolver, which this one is added after. YAML 1.1's integers are
+    replaced by YAML 1.2's: `012` is twelve, not the octal 10, and `1:30` is text, not the base-60 number 90 (octal
+    is `0o12`, hexadecimal `0x1f`; digits may still be grouped, `10_000`).
 
     A key given twice in one mapping is refused (PyYAML keeps the last value: a scene's second `seed:` or `timeline:`
     silently replaced the first), naming both lines.
@@ -50,6 +58,21 @@ YamlLoader.add_implicit_resolver(  # a classmethod: copies SafeLoader's resolver
     "tag:yaml.org,2002:float",
     re.compile(r"^[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+)$"),
     list("-+.0123456789"))
+YamlLoader.yaml_implicit_resolvers = {
+    first: [(tag, pattern) for tag, pattern in resolvers if tag != "tag:yaml.org,2002:int"]
+    for first, resolvers in YamlLoader.yaml_implicit_resolvers.items()}
+YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:int", re.compile(r"^(?:[-+]?[0-9][0-9_]*|0o[0-7][0-7_]*|0x[0-9a-fA-F][0-9a-fA-F_]*)$"),
+    list("-+0123456789"))
+
+
+def _yaml12_int(loader: YamlLoader, node) -> int:
+    digits = loader.construct_scalar(node).replace("_", "")
+    base = {"0o": 8, "0x": 16}.get(digits[:2], 10)
+    return int(digits[2:] if base != 10 else digits, base)
+
+
+YamlLoader.add_constructor("tag:yaml.org,2002:int", _yaml12_int)
 
 
 def load_yaml_file(path: str | os.PathLike, what: str, error: type[Exception] = ValueError):
@@ -63,12 +86,32 @@ def load_yaml_file(path: str | os.PathLike, what: str, error: type[Exception] = 
     except UnicodeDecodeError as exc:  # a ValueError, which the command lines would report without the file's name
         raise error(f"{what} {path} is not UTF-8 text (bad byte at offset {exc.start}); give a YAML file") from exc
     try:
-        return yaml.load(text, Loader=YamlLoader)  # a SafeLoader: builds no Python objects
+        content = yaml.load(text, Loader=YamlLoader)  # a SafeLoader: builds no Python objects
     except yaml.YAMLError as exc:
         raise error(f"{what} {path} is not valid YAML: {exc}") from exc
     except RecursionError as exc:  # PyYAML's composer recurses once per level (a traceback: found in review)
         raise error(f"{what} {path} nests its lists or mappings too deeply for a YAML reader; no scene, sensor "
                     "description or camera sources file needs more than a few levels") from exc
+    if _values_beyond(content, MAX_YAML_VALUES):
+        raise error(f"{what} {path} expands to more than {MAX_YAML_VALUES} values through its aliases (*name); no "
+                    "scene, sensor description or camera sources file needs that many")
+    return content
+
+
+def _values_beyond(content, limit: int) -> bool:
+    """Whether `content` holds more than `limit` values, each alias counted as often as it is used; the walk stops
+    at the limit, so that a file of aliases of aliases is refused in a bounded time."""
+    pending, seen = [content], 0
+    while pending:
+        value = pending.pop()
+        seen += 1
+        if seen > limit:
+            return True
+        if isinstance(value, dict):
+            pending += [*value.keys(), *value.values()]
+        elif isinstance(value, list):
+            pending += value
+    return False
 
 
 class YamlFields:

@@ -27,6 +27,9 @@ def test_nan_stays_a_float():
 @pytest.mark.parametrize("text, value", [
     ("10", 10), ("-3", -3), ("0", 0), ("0x10", 16), ("abc", "abc"), ("1e", "1e"), ("e3", "e3"), ("1e3x", "1e3x"),
     ("'1e3'", "1e3"), ("true", True), ("1.2.3", "1.2.3"),
+    # YAML 1.2's integers, not 1.1's: `seed: 012` was the octal 10, `frames: 1:30` the base-60 number 90
+    ("012", 12), ("-012", -12), ("+7", 7), ("1:30", "1:30"), ("0o12", 10), ("0x1f", 31), ("10_000", 10000),
+    ("0b101", "0b101"), ("0o", "0o"), ("0x_", "0x_"), ("0o8", "0o8"),
 ])
 def test_integers_stay_integers_and_strings_stay_strings(text, value):
     loaded = yaml.load(f"v: {text}", Loader=YamlLoader)["v"]
@@ -61,6 +64,21 @@ def test_nesting_too_deep_for_the_yaml_reader_raises_the_given_error(tmp_path):
     deep.write_text("timeline: " + "[" * 2000 + "]" * 2000 + "\n")
     with pytest.raises(ValueError, match=f"scene {deep} nests its lists or mappings too deeply for a YAML reader"):
         load_yaml_file(deep, "scene", ValueError)
+
+
+def test_a_file_of_aliases_of_aliases_is_refused_before_anything_walks_it(tmp_path):
+    """600 bytes that expand to 10**9 values ("billion laughs"): a check or an error message's repr of them ran out of
+    memory (found in review). The walk that refuses it stops at the limit."""
+    text = "a: &a [" + ", ".join(["x"] * 10) + "]\n"
+    for level, name in enumerate("bcdefghi"):
+        text += f"{name}: &{name} [" + ", ".join([f"*{'abcdefghi'[level]}"] * 10) + "]\n"
+    laughs = tmp_path / "laughs.yaml"
+    laughs.write_text(text)
+    with pytest.raises(ValueError, match=f"scene {laughs} expands to more than 1000000 values through its aliases"):
+        load_yaml_file(laughs, "scene", ValueError)
+    shared = tmp_path / "shared.yaml"  # aliases as a scene uses them: read as before
+    shared.write_text("press: &p {x_mm: 1, y_mm: 2}\ntimeline: [*p, *p, {<<: *p, x_mm: 3}]\n")
+    assert load_yaml_file(shared, "scene", ValueError)["timeline"][2] == {"x_mm": 3, "y_mm": 2}
 
 
 def test_unknown_keys_of_mixed_types_are_all_named():
