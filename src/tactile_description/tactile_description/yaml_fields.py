@@ -17,7 +17,6 @@ import yaml
 
 from tactile_description.value_checks import is_number, is_whole_number
 
-
 #: The most values (scalars, lists and mappings, each alias counted as often as it is used) a YAML file of the stack
 #: may expand to: the largest shipped file has a few hundred. Ten aliases of ten aliases, nine levels deep, are a
 #: 600-byte file of 10**9 values, which any walk over them (a check, an error message's repr) runs out of memory on.

@@ -64,8 +64,8 @@ def test_ctrl_c_or_sigterm_stops_generate_in_one_line_with_the_data_set_left_inc
     process.send_signal(stop)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 128 + stop, stderr
-    assert stderr.strip().splitlines()[-1] == f"tactile-sim generate: stopped by {named}; the data set is left marked " \
-                                               "incomplete" and "Traceback" not in stderr, stderr
+    assert stderr.strip().splitlines()[-1] == (f"tactile-sim generate: stopped by {named}; the data set is left "
+                                               "marked incomplete") and "Traceback" not in stderr, stderr
     with pytest.raises(DatasetError, match="is incomplete"):
         open_dataset(out)
 
