@@ -27,11 +27,10 @@ class YamlLoader(yaml.SafeLoader):
     """PyYAML's safe loader, which reads numbers as YAML 1.2 does.
 
     PyYAML follows YAML 1.1, whose float needs a dot and a signed exponent: it reads `1e-3` as the string "1e-3",
-    which every number check then refuses with a confusing message. The added resolver needs a dot or an exponent,
-    so that `10` stays an integer (counts are checked to be whole numbers); YAML 1.1's floats (`.inf`, `.nan`,
-    `1_000.5`) still resolve through PyYAML's own resolver, which this one is added after. YAML 1.1's integers are
-    replaced by YAML 1.2's: `012` is twelve, not the octal 10, and `1:30` is text, not the base-60 number 90 (octal
-    is `0o12`, hexadecimal `0x1f`; digits may still be grouped, `10_000`).
+    which every number check then refuses with a confusing message. Here a float needs a dot or an exponent, so that
+    `10` stays an integer (counts are checked to be whole numbers), and `.inf`, `.nan` and `1_000.5` are floats as
+    before. YAML 1.1's integers and its base-60 numbers are gone: `012` is twelve, not the octal 10, and `1:30` and
+    `1:30.5` are text, not 90 and 90.5 (octal is `0o12`, hexadecimal `0x1f`; digits may still be grouped, `10_000`).
 
     A key given twice in one mapping is refused (PyYAML keeps the last value: a scene's second `seed:` or `timeline:`
     silently replaced the first), naming both lines.
@@ -53,25 +52,36 @@ class YamlLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
-YamlLoader.add_implicit_resolver(  # a classmethod: copies SafeLoader's resolvers first, leaving them as they are
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+)$"),
-    list("-+.0123456789"))
+INT_TAG, FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+# YAML 1.2's numbers in place of PyYAML's YAML 1.1 rules (class docstring); digits may be grouped with `_`, as PyYAML
+# allows. The resolvers are the loader's own, built from SafeLoader's, which stay as they are.
 YamlLoader.yaml_implicit_resolvers = {
-    first: [(tag, pattern) for tag, pattern in resolvers if tag != "tag:yaml.org,2002:int"]
-    for first, resolvers in YamlLoader.yaml_implicit_resolvers.items()}
+    first: [(tag, pattern) for tag, pattern in resolvers if tag not in (INT_TAG, FLOAT_TAG)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 YamlLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:int", re.compile(r"^(?:[-+]?[0-9][0-9_]*|0o[0-7][0-7_]*|0x[0-9a-fA-F][0-9a-fA-F_]*)$"),
-    list("-+0123456789"))
+    INT_TAG, re.compile(r"^(?:[-+]?[0-9][0-9_]*|0o[0-7][0-7_]*|0x[0-9a-fA-F][0-9a-fA-F_]*)$"), list("-+0123456789"))
+YamlLoader.add_implicit_resolver(
+    FLOAT_TAG,
+    re.compile(r"^(?:[-+]?(?:(?:[0-9][0-9_]*\.[0-9_]*|\.[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)?|[0-9][0-9_]*[eE][-+]?[0-9]+)"
+               r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"),
+    list("-+.0123456789"))
 
 
 def _yaml12_int(loader: YamlLoader, node) -> int:
-    digits = loader.construct_scalar(node).replace("_", "")
+    """An integer as YAML 1.2 writes it: decimal (`012` is twelve), `0o` octal or `0x` hexadecimal. Also for an
+    explicit `!!int`, whose YAML 1.1 forms (`0b101`, `1:30`) are refused naming the line."""
+    text = loader.construct_scalar(node)
+    digits = text.replace("_", "")
     base = {"0o": 8, "0x": 16}.get(digits[:2], 10)
-    return int(digits[2:] if base != 10 else digits, base)
+    try:
+        return int(digits[2:] if base != 10 else digits, base)
+    except ValueError:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"{text!r} is not an integer (YAML 1.2: decimal, 0o octal or 0x hexadecimal)",
+            node.start_mark) from None
 
 
-YamlLoader.add_constructor("tag:yaml.org,2002:int", _yaml12_int)
+YamlLoader.add_constructor(INT_TAG, _yaml12_int)
 
 
 def load_yaml_file(path: str | os.PathLike, what: str, error: type[Exception] = ValueError):

@@ -29,7 +29,8 @@ def test_nan_stays_a_float():
     ("'1e3'", "1e3"), ("true", True), ("1.2.3", "1.2.3"),
     # YAML 1.2's integers, not 1.1's: `seed: 012` was the octal 10, `frames: 1:30` the base-60 number 90
     ("012", 12), ("-012", -12), ("+7", 7), ("1:30", "1:30"), ("0o12", 10), ("0x1f", 31), ("10_000", 10000),
-    ("0b101", "0b101"), ("0o", "0o"), ("0x_", "0x_"), ("0o8", "0o8"),
+    ("0b101", "0b101"), ("0o", "0o"), ("0x_", "0x_"), ("0o8", "0o8"), ("1:30.5", "1:30.5"), ("-1:30.0", "-1:30.0"),
+    ("1.5", 1.5), ("-.5", -0.5), ("+1_000.5", 1000.5), ("-.inf", -math.inf), ("1e3", 1000.0),
 ])
 def test_integers_stay_integers_and_strings_stay_strings(text, value):
     loaded = yaml.load(f"v: {text}", Loader=YamlLoader)["v"]
@@ -64,6 +65,16 @@ def test_nesting_too_deep_for_the_yaml_reader_raises_the_given_error(tmp_path):
     deep.write_text("timeline: " + "[" * 2000 + "]" * 2000 + "\n")
     with pytest.raises(ValueError, match=f"scene {deep} nests its lists or mappings too deeply for a YAML reader"):
         load_yaml_file(deep, "scene", ValueError)
+
+
+@pytest.mark.parametrize("text", ["0b101", "1:30", "-0x10", "ten"])
+def test_an_explicit_int_that_yaml_12_cannot_read_is_refused_naming_the_file_and_line(tmp_path, text):
+    """`!!int 0b101` read as YAML 1.1 did (5) until YAML 1.2's integers came; then a ValueError naming no file."""
+    tagged = tmp_path / "tagged.yaml"
+    tagged.write_text(f"seed: 1\nframes: !!int {text}\n")
+    with pytest.raises(ValueError, match=rf"(?s)scene {tagged} is not valid YAML: .*'{text}' is not an integer \(YAML "
+                                         r"1.2: decimal, 0o octal or 0x hexadecimal\).*line 2"):
+        load_yaml_file(tagged, "scene", ValueError)
 
 
 def test_a_file_of_aliases_of_aliases_is_refused_before_anything_walks_it(tmp_path):

@@ -331,7 +331,7 @@ def replace_written(path: Path, partial: Path, write: Callable[[Path], None]) ->
         with open(partial, "rb") as f:
             os.fsync(f.fileno())
         os.replace(partial, path)
-    except Exception:
+    except BaseException:  # a Ctrl-C or SIGTERM (StopSignal) too: a new --out left holding it would not be removed
         discard(partial)
         raise
 

@@ -511,15 +511,15 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     if not isinstance(checkpoint, dict):
         raise CheckpointMismatchError(f"checkpoint {path} holds a {type(checkpoint).__name__}, not a checkpoint of "
                                       "tactile-fusion train; delete it to train its phase afresh")
-    malformed = _malformed_checkpoint(checkpoint)
-    if malformed:
-        raise CheckpointMismatchError(f"checkpoint {path} is not as tactile-fusion train writes one ({malformed}): it "
-                                      "was edited or damaged; delete it to train its phase afresh")
     # The model's shape is checked by load_state_dict, but not what it computes (the activation).
     if checkpoint.get("model_config") != model.config.to_dict():
         raise CheckpointMismatchError(f"checkpoint {path} was written for the model {checkpoint.get('model_config')}, "
                                       f"not {model.config.to_dict()}: resume with the same model settings or delete "
                                       "the checkpoint")
+    malformed = _malformed_checkpoint(checkpoint)
+    if malformed:
+        raise CheckpointMismatchError(f"checkpoint {path} is not as tactile-fusion train writes one ({malformed}): it "
+                                      "was edited or damaged; delete it to train its phase afresh")
     # Checkpoints written before models could leave components out estimated all three.
     with _as_malformed(path, "its components"):
         components = checked_components(checkpoint.get("components", FORCE_COMPONENTS))
@@ -574,16 +574,19 @@ STATE_ENTRIES = {"epoch": int, "initial_val": float, "best_val": float, "best_ep
 
 
 def _malformed_checkpoint(checkpoint: dict) -> str:
-    """What makes a checkpoint unusable before anything is read from it (an entry missing or of the wrong kind, best
-    weights of another shape than its weights), or "" for none: a hand-edited or foreign one gave a KeyError
-    traceback. Whether its weights fit the model is checked after its model settings, which say why they do not."""
+    """What makes a checkpoint unusable before anything is read from it (an entry missing or of the wrong kind, weights
+    that are not tensors, best weights of another shape than its weights), or "" for none: a hand-edited or foreign
+    one gave a KeyError traceback. Whether its weights fit the model is checked after its model settings, which say
+    why they do not."""
     for entries, where in ((CHECKPOINT_ENTRIES, checkpoint), (STATE_ENTRIES, checkpoint.get("state", {}))):
         for name, kind in entries.items():
             value = where.get(name)
             if not isinstance(value, kind) or isinstance(value, bool):
                 return f"{name} is {type(value).__name__ if name in where else 'missing'}, not {kind.__name__}"
-    shapes = [{name: tuple(getattr(t, "shape", ())) for name, t in weights.items()}
-              for weights in (checkpoint["model"], checkpoint["state"]["best_model"])]
+    weights = (checkpoint["model"], checkpoint["state"]["best_model"])
+    if not all(isinstance(t, torch.Tensor) for held in weights for t in held.values()):
+        return "its weights are not all tensors"
+    shapes = [{name: tuple(t.shape) for name, t in held.items()} for held in weights]
     return "its best weights are of another shape than its weights" if shapes[0] != shapes[1] else ""
 
 

@@ -21,6 +21,7 @@ from tactile_fusion.artifacts import (
     check_model_fits,
     load_model,
     model_fields,
+    replace_written,
     save_model,
     write_json,
     write_torch_file,
@@ -507,3 +508,18 @@ def test_non_finite_numbers_are_written_to_json_as_null(tmp_path):
     assert json.loads(path.read_text()) == {"history": [{"train_rmse": None, "val_rmse": None}, {"train_rmse": 0.5}],
                                             "ok": 1.0}
     assert "Infinity" not in path.read_text() and "NaN" not in path.read_text()
+
+
+def test_a_write_cut_off_by_a_stop_signal_leaves_no_partial_file(tmp_path):
+    """Only an Exception removed the partial file: one cut off by a Ctrl-C or SIGTERM (a BaseException) was left, and
+    a new --out holding it was not removed, nor found holding a checkpoint to resume (found in review)."""
+    path = tmp_path / "checkpoint_end_to_end.pt"
+    partial = tmp_path / ("checkpoint_end_to_end.pt" + PARTIAL_SUFFIX)
+
+    def cut_off(target):
+        target.write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        replace_written(path, partial, cut_off)
+    assert list(tmp_path.iterdir()) == []

@@ -202,6 +202,8 @@ def _without_a_weight(saved):
     (lambda saved: saved["state"].update(epoch="1"), r"epoch is str, not int"),
     (lambda saved: saved["state"].update(best_val=True), r"best_val is bool, not float"),
     (_without_a_weight, r"its best weights are of another shape than its weights"),
+    (lambda saved: saved["model"].update({name: t.tolist() for name, t in saved["model"].items()}),
+     r"its weights are not all tensors"),
     (lambda saved: saved["optimizer"].update(param_groups=[]), r"its optimizer or scheduler state: .*parameter group"),
 ])
 def test_a_hand_edited_checkpoint_is_refused_saying_what_is_wrong(frames, tiny_config, tmp_path, edit, message):

@@ -129,8 +129,8 @@ def _bench(args, sensor) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        sensor = load_sensor(args.sensor)
         with stop_signals_raised():
+            sensor = load_sensor(args.sensor)
             {"press": _press, "generate": _generate, "render": _render, "bench": _bench}[args.command](args, sensor)
     except (SceneError, DatasetError, SensorConfigError, ValueError) as exc:
         return error_exit(f"tactile-sim {args.command}", exc)

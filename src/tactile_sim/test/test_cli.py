@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -47,6 +48,33 @@ def test_generate_overwrite_refuses_a_directory_without_a_data_set(tmp_path, cap
                                        "holds no data set (no meta.json of a tactile_sim.dataset data set); choose a "
                                        "new or empty one (overwrite, --overwrite, replaces a data set only)\n")
     assert [f.name for f in tmp_path.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.parametrize("stop, named", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")])
+def test_a_stop_while_the_sensor_file_is_read_ends_the_command_in_one_line(tmp_path, stop, named):
+    """The sensor file is read before the command runs; a stop there gave a traceback (found in review). A FIFO holds
+    the reading up: once the command has it open, its writer stays open and sends nothing."""
+    fifo = tmp_path / "sensor.yaml"
+    os.mkfifo(fifo)
+    process = subprocess.Popen([sys.executable, "-m", "tactile_sim.cli", "press", "--sensor", str(fifo), "--x-mm", "0",
+                                "--y-mm", "0", "--depth-mm", "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 60
+    writer = None
+    while writer is None and time.monotonic() < deadline:
+        try:
+            writer = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)  # fails (ENXIO) until the command opens it to read
+        except OSError:
+            time.sleep(0.02)
+    try:
+        time.sleep(0.2)  # into the read, which waits for the writer
+        process.send_signal(stop)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        if writer is not None:
+            os.close(writer)
+    assert process.returncode == 128 + stop, stderr
+    assert stderr.strip() == f"tactile-sim press: stopped by {named}", stderr
 
 
 @pytest.mark.parametrize("stop, named", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")])
