@@ -9,8 +9,9 @@ any type, and the node checks and converts it itself. A check written `x <= 0` l
 A timer's period is passed to rcl as int64 nanoseconds: rclpy fails on a longer one than 292 years with a pybind
 TypeError that names no parameter (`-p camera_timeout_s:=1e12`, `-p rate_hz:=1e-12`). `period_s` and `rate_hz`, for
 the parameters a timer is built from, take at most a period of `MAX_PERIOD_S` (a day), far below that. A period is
-also rounded to whole nanoseconds: `-p rate_hz:=1e12` made a timer of period 0, which fires on every spin;
-`rate_hz` takes at most `MAX_RATE_HZ`.
+also rounded to whole nanoseconds: `-p rate_hz:=1e12` made a timer of period 0, which fires on every spin, and
+`-p camera_timeout_s:=1e-10` one that held a core; `rate_hz` takes at most `MAX_RATE_HZ`, `period_s` at least
+`MIN_PERIOD_S`, its period.
 
 Switches and names (`boolean`, `text`) are declared with `DYNAMIC` too: declared with their type, `-p loop:=0` or
 `-p scene:=3` ended in rclpy's InvalidParameterTypeException traceback, which names neither the node nor what the
@@ -39,6 +40,8 @@ MIN_RATE_HZ = 1.0 / MAX_PERIOD_S
 #: markers at 10 by default; a camera or marker rate above 1 kHz is a typo, and a node could not keep it anyway (a
 #: frame of the simulated sensor takes milliseconds to render).
 MAX_RATE_HZ = 1000.0
+#: The shortest period or timeout that period_s takes: that of the highest rate.
+MIN_PERIOD_S = 1.0 / MAX_RATE_HZ
 
 
 class ParameterError(ValueError):
@@ -71,8 +74,10 @@ def whole_number(node: Node, name: str, default: int, low: int = 1, high: int | 
 
 
 def period_s(node: Node, name: str, default: float) -> float:
-    """positive_float for a period or timeout that a timer is built from: also at most MAX_PERIOD_S."""
+    """positive_float for a period or timeout that a timer is built from: also from MIN_PERIOD_S to MAX_PERIOD_S."""
     value = positive_float(node, name, default)
+    if value < MIN_PERIOD_S:
+        raise ParameterError(f"{node.get_name()}: parameter {name} must be at least {MIN_PERIOD_S:g} s, got {value!r}")
     if value > MAX_PERIOD_S:
         raise ParameterError(f"{node.get_name()}: parameter {name} must be at most {MAX_PERIOD_S:g} s (one day), "
                              f"got {value!r}")

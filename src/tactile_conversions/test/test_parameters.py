@@ -78,6 +78,8 @@ def test_a_period_of_up_to_a_day_and_a_rate_of_at_least_once_a_day_make_a_timer(
 
 @pytest.mark.parametrize("helper, value, message", [
     (period_s, 1e12, "parameters_test: parameter period_s must be at most 86400 s (one day), got 1000000000000.0"),
+    # rounded to whole nanoseconds, a bundle node's camera check (every half timeout) ran on every spin: a core held
+    (period_s, 1e-10, "parameters_test: parameter period_s must be at least 0.001 s, got 1e-10"),
     (period_s, 86_401, "parameter period_s must be at most 86400 s (one day), got 86401"),
     (period_s, math.nan, "parameter period_s must be a finite number > 0, got nan"),
     (rate_hz, 1e-12, "parameters_test: parameter period_s must be at least 1.15741e-05 Hz (once a day), got 1e-12"),

@@ -43,6 +43,9 @@ from tactile_msgs.msg import ImageBundle
 
 #: While the synchroniser drops images, what it dropped is logged at once and then at most this often (seconds).
 DROP_LOG_PERIOD_S = 10.0
+#: A camera whose measured rate is within this fraction of the description's runs at it: where its period does not fit
+#: the settings in force, those were given to the node, and the remedy is not another frame_rate_hz.
+DESCRIBED_RATE_TOLERANCE = 0.05
 
 
 class BundleNode(Node):
@@ -128,10 +131,15 @@ class BundleNode(Node):
         misfits = period_misfits(period, self.sync_settings)
         if misfits:
             self.named_rates.add(camera_id)
+            if abs(period * self.sensor.frame_rate_hz - 1.0) <= DESCRIBED_RATE_TOLERANCE:
+                remedy = ("The camera runs at the description's rate, so the parameters given to this node do not fit "
+                          "it: leave them out (the defaults follow the description), or set them for that rate")
+            else:
+                remedy = ("Set frame_rate_hz in the sensor description to the cameras' rate (this node's defaults "
+                          "follow it), or set those parameters")
             self.get_logger().warning(
                 f"{camera_id} captures {1 / period:.3g} frames a second by its stamps, the sensor description says "
-                f"{self.sensor.frame_rate_hz:g} Hz: {'; '.join(misfits)}. Set frame_rate_hz in the sensor description "
-                "to the cameras' rate (this node's defaults follow it), or set those parameters")
+                f"{self.sensor.frame_rate_hz:g} Hz: {'; '.join(misfits)}. {remedy}")
 
     def check_cameras(self) -> None:
         """Rebuild the synchroniser when the set of cameras that send images changes."""

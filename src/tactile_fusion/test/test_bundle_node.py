@@ -118,6 +118,18 @@ def test_cameras_slower_than_the_sensor_description_are_named_once_with_the_reme
     assert "left out of the bundles" not in err  # 0.1 s is within camera_timeout_s
 
 
+def test_cameras_at_the_descriptions_rate_under_a_too_narrow_max_spread_are_named_with_that_remedy(bundler, capfd):
+    """The remedy was to set frame_rate_hz to the cameras' rate, which it already was (found in review)."""
+    node, bundles = bundler("-p", "max_spread_s:=0.005")
+    send(node, [100.0 + k * PERIOD_S for k in range(8)])
+    err = capfd.readouterr().err
+    assert err.count("cam0 captures 40 frames a second by its stamps, the sensor description says 40 Hz: 4 cameras "
+                     "without a common trigger capture up to 0.0187 s apart at this rate, more than max_spread_s "
+                     "(0.005 s)") == 1
+    assert "The camera runs at the description's rate, so the parameters given to this node do not fit it" in err
+    assert "Set frame_rate_hz" not in err
+
+
 def test_cameras_at_the_sensor_descriptions_rate_are_not_named(bundler, capfd):
     node, bundles = bundler()
     send(node, [100.0 + k * PERIOD_S + 0.002 * (k % 2) for k in range(12)])  # with jitter
