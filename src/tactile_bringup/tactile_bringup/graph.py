@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tactile_conversions.topics import BUNDLE_TOPIC
 from tactile_description import SensorDescription
 from tactile_description.yaml_fields import load_yaml_file
 
@@ -64,19 +63,18 @@ def sensor_graph(sensor: SensorDescription, sensor_config: str, source: str = "s
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
     common = {"sensor_config": sensor_config}
+    bundles = NodeSpec("tactile_fusion", "bundle_node", "tactile_bundle", common)
+    fusion = NodeSpec("tactile_fusion", "fusion_node", "tactile_fusion",
+                      {**common, "model_dir": model_dir, "backend": backend, "precision": precision})
     if source == "sim":
-        # The scene plays once the fusion node hears the bundles (it subscribes after loading its model), so that its
-        # reference frames are the scene's opening rest: see tactile_camera_driver.sim_camera_node.
+        # The scene plays once the bundle node and the fusion node (which subscribes after loading its model) listen,
+        # so that the fusion node's reference frames are the scene's opening rest: see sim_camera_node.
         cameras = [NodeSpec("tactile_camera_driver", "sim_camera_node", "tactile_sim_cameras",
-                            {**common, "scene": scene, "wait_for_subscriber": BUNDLE_TOPIC})]
+                            {**common, "scene": scene, "wait_for_nodes": f"{bundles.name},{fusion.name}"})]
     else:
         if not camera_sources_file:
             raise ValueError("source 'cameras' needs a camera sources file (camera_id -> OpenCV source)")
         cameras = [NodeSpec("tactile_camera_driver", "camera_node", f"tactile_camera_{camera_id}",
                             {**common, "camera_id": camera_id, "source": device})
                    for camera_id, device in camera_sources(camera_sources_file, sensor).items()]
-    return cameras + [
-        NodeSpec("tactile_fusion", "bundle_node", "tactile_bundle", common),
-        NodeSpec("tactile_fusion", "fusion_node", "tactile_fusion",
-                 {**common, "model_dir": model_dir, "backend": backend, "precision": precision}),
-    ]
+    return [*cameras, bundles, fusion]

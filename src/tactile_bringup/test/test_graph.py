@@ -6,7 +6,6 @@ import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
 from tactile_bringup.graph import NodeSpec, camera_sources, sensor_graph
-from tactile_conversions.topics import BUNDLE_TOPIC
 from tactile_description import default_sensor_path, load_sensor
 
 SHARE = Path(get_package_share_directory("tactile_bringup"))
@@ -21,8 +20,8 @@ def test_simulated_graph_runs_cameras_bundle_and_fusion(sensor):
     specs = sensor_graph(sensor, str(default_sensor_path()), "sim", scene="demo", model_dir="/models/x")
     assert [s.executable for s in specs] == ["sim_camera_node", "bundle_node", "fusion_node"]
     assert specs[0].parameters["scene"] == "demo"
-    # the scene plays once the fusion node, which loads its model first, hears the bundles (sim_camera_node)
-    assert specs[0].parameters["wait_for_subscriber"] == BUNDLE_TOPIC
+    # the scene plays once the bundle node and the fusion node, which loads its model first, listen (sim_camera_node)
+    assert specs[0].parameters["wait_for_nodes"] == f"{specs[1].name},{specs[2].name}"
     assert specs[2].parameters["model_dir"] == "/models/x"
     assert all(s.parameters["sensor_config"] == str(default_sensor_path()) for s in specs)
 

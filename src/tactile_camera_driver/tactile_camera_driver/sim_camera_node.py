@@ -14,10 +14,13 @@ nothing. Frames nobody receives are lost for good, and a scene's first frames ma
 reference frames from the first bundles, which must show the surface at rest. Started at once, the scene ran on while
 DDS discovery connected the bundle node, and under load the demo's 2 s of rest were over before the first bundle
 reached the fusion node: its reference showed a press, and the estimates were off by 0.25-0.37 N in total (found in
-review). Where a later node must hear the scene from its start, `wait_for_subscriber` names a topic that must have a
-subscriber too: the sensor graph (sensor.launch.py) names the bundles, which the fusion node subscribes only once its
-model is loaded, seconds after the launch file starts every node at once. Left empty (the default), a graph without
-such a node, cameras and a bundle node recorded to a bag, plays as soon as its images are heard.
+review). Nor does a subscriber of the images say that the graph is listening: a bag recorder started first is one,
+and while DDS discovery took 2.4 s to connect the bundle node, the demo's rest went by (found in review, 1 of 7 runs).
+So where later nodes must hear the scene from its start, `wait_for_nodes` names them (comma-separated), and the scene
+plays only once the ROS graph shows each of them with a subscription: the sensor graph (sensor.launch.py,
+tactile-demo) names its bundle node, which subscribes to the images, and its fusion node, which subscribes to the
+bundles only once its model is loaded, seconds after a launch file starts every node at once. Left empty (the
+default), as a graph without those nodes needs, the scene plays as soon as its images are heard.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import numpy as np
 from rclpy.exceptions import NameValidationException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.validate_node_name import validate_node_name
 from sensor_msgs.msg import Image
 
 from tactile_conversions.forces import force_distribution_msg
@@ -58,7 +62,7 @@ class SimCameraNode(Node):
         self.sensor = sensor_description(self)
         frame_rate_hz = rate_hz(self, "rate_hz", self.sensor.frame_rate_hz)
         self.stamp_jitter_s = self.declare_stamp_jitter(frame_rate_hz)
-        self.awaited_topic = self.declare_awaited_topic()
+        self.awaited_nodes = self.declare_awaited_nodes()
         with refused_as(self, "parameter sensor_config", SensorConfigError):
             self.simulator = Simulator(self.sensor)  # refuses what only the simulator needs (where the particles are)
         with refused_as(self, "parameter scene", SceneError):
@@ -70,29 +74,41 @@ class SimCameraNode(Node):
         self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
         self.playing = False  # until its listeners are there (module docstring, `listened`)
         self.timer = self.create_timer(1.0 / frame_rate_hz, self.publish_frame)
-        awaited = f" and {self.awaited_topic}" if self.awaited_topic else ""
+        awaited = f" and nodes {list(self.awaited_nodes)} subscribe" if self.awaited_nodes else " are subscribed"
         self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at "
                                f"{frame_rate_hz:.1f} Hz for cameras {list(self.sensor.camera_ids)}, from its first "
-                               f"frame once their images{awaited} are subscribed")
+                               f"frame once their images{awaited}")
 
-    def declare_awaited_topic(self) -> str:
-        """The `wait_for_subscriber` parameter: a topic name, or "" for none (module docstring)."""
-        topic = text(self, "wait_for_subscriber", "")
-        if topic:
-            with refused_as(self, "parameter wait_for_subscriber", ValueError, NameValidationException):
-                self.count_subscribers(topic)  # rcl's check of the name: a malformed one raises here, not later
-        return topic
+    def declare_awaited_nodes(self) -> tuple[str, ...]:
+        """The `wait_for_nodes` parameter: node names separated by commas, "" for none (module docstring)."""
+        names = tuple(name.strip() for name in text(self, "wait_for_nodes", "").split(",") if name.strip())
+        for name in names:
+            with refused_as(self, "parameter wait_for_nodes", NameValidationException):
+                validate_node_name(name)
+        return names
 
     def listened(self) -> bool:
-        """Whether the scene may play: a camera's images are subscribed, and so is `wait_for_subscriber`'s topic."""
+        """Whether the scene may play: a camera's images are subscribed, and each node of `wait_for_nodes` has a
+        subscription."""
         if not any(publisher.get_subscription_count() for publisher in self.image_pubs.values()):
             return False
-        if self.awaited_topic and not self.count_subscribers(self.awaited_topic):
-            self.get_logger().info(f"images subscribed; waiting for a subscriber of {self.awaited_topic} "
-                                   "(parameter wait_for_subscriber) before playing the scene",
-                                   throttle_duration_sec=10.0)
-            return False
-        return True
+        waiting = [name for name in self.awaited_nodes if not self.subscribes(name)]
+        if waiting:
+            self.get_logger().info(f"images subscribed; waiting for nodes {waiting} to subscribe (parameter "
+                                   "wait_for_nodes) before playing the scene", throttle_duration_sec=10.0)
+        return not waiting
+
+    def subscribes(self, name: str) -> bool:
+        """Whether the ROS graph shows a node called `name`, in any namespace, with a subscription."""
+        for node, namespace in self.get_node_names_and_namespaces():
+            if node != name:
+                continue
+            try:
+                if self.get_subscriber_names_and_types_by_node(node, namespace):
+                    return True
+            except RuntimeError:  # rclpy's NodeNameNonExistentError: it left the graph meanwhile
+                continue
+        return False
 
     def declare_stamp_jitter(self, frame_rate_hz: float) -> float:
         """The `stamp_jitter_s` parameter: from 0 to one frame period.
