@@ -54,7 +54,9 @@ def cmd_record(args) -> int:
     counts = recording.counts
     total = sum(counts.values())
     silent = [t for t, n in counts.items() if not n]
-    print(f"recorded {total} messages in {time.monotonic() - started:.1f} s into {args.out}: "
+    # --duration counts from the first message; the time here includes the wait for it
+    print(f"recorded {total} messages in {time.monotonic() - started:.1f} s, the wait for the first included, into "
+          f"{args.out}: "
           + ", ".join(f"{t} {n}" for t, n in counts.items())
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
     if not total and recording.stopped:  # not "no message within --wait": that had not run out (found in review)

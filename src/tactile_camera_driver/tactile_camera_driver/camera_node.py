@@ -58,6 +58,14 @@ def is_video_file(source: int | str) -> bool:
     return isinstance(source, str) and (Path(source).is_file() or "%" in source)
 
 
+def missing_file(source: int | str) -> str:
+    """", no such file" for a path that names nothing (a mistyped video file, or a device not plugged in yet), else
+    "": a source that exists and cannot be opened is another matter (a busy device, an unreadable video)."""
+    if isinstance(source, str) and "%" not in source and not Path(source).exists():
+        return ", no such file"
+    return ""
+
+
 def open_source(source: int | str, capture_size: tuple[int, int], frame_rate_hz: float) -> cv2.VideoCapture:
     """A VideoCapture for a device index, a device path, a video file or an image sequence. A device keeps one frame
     and is asked for the sensor description's capture size and the node's frame rate (module docstring)."""
@@ -121,8 +129,9 @@ class CameraNode(Node):
         if not self.capture.isOpened():
             # A try happens at a frame tick: every reopen_period_s, or every frame period where that is longer.
             retry_s = max(self.reopen_period_s, 1.0 / self.frame_rate_hz)
-            self.get_logger().error(f"{self.camera_id}: cannot open camera source {self.source!r}; retrying every "
-                                    f"{retry_s:.3g} s", throttle_duration_sec=10.0)
+            self.get_logger().error(f"{self.camera_id}: cannot open camera source {self.source!r}"
+                                    f"{missing_file(self.source)}; retrying every {retry_s:.3g} s",
+                                    throttle_duration_sec=10.0)
             self.capture = None
             self.next_open_s = self.now_s() + self.reopen_period_s
             return False

@@ -38,7 +38,9 @@ def test_written_data_set_reads_back_as_streamed(sim, written):
 
 
 def test_non_empty_output_is_not_overwritten_by_accident(sim, written):
-    with pytest.raises(DatasetError, match="not empty"):
+    # the command line's option first: "pass overwrite=True (--overwrite)" spoke Python to a shell user
+    with pytest.raises(DatasetError, match=r"not empty: it holds a data set; choose a new one or replace it with "
+                                           r"--overwrite \(overwrite=True in Python\)"):
         write_dataset(sim, load_scene("effects"), written, progress=False, frames=2)
 
 
