@@ -12,12 +12,14 @@ from tactile_description.sensor import (
     SensorConfigError,
     SensorDescription,
     default_sensor_path,
+    installed_config_dir,
     left_out_components,
     load_sensor,
 )
 
 __all__ = [
     "FORCE_COMPONENTS", "SENSOR_ENV", "BinGrid", "CameraSpec", "Crop", "FisheyeLens", "GelLayer", "ParticleSpec",
-    "SensorConfigError", "SensorDescription", "default_sensor_path", "left_out_components",
+    "SensorConfigError", "SensorDescription", "default_sensor_path", "installed_config_dir",
+    "left_out_components",
     "load_sensor",
 ]

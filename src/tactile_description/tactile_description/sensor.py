@@ -207,6 +207,11 @@ def default_sensor_path() -> Path:
     override = os.environ.get(SENSOR_ENV)
     if override:
         return Path(override)
+    return installed_config_dir() / "sensor.yaml"
+
+
+def installed_config_dir() -> Path:
+    """tactile_bringup's installed config directory: the default sensor description and the simulator's scenes."""
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
     except ImportError as exc:  # pragma: no cover - only without any ROS 2 Python packages
@@ -217,7 +222,7 @@ def default_sensor_path() -> Path:
     except PackageNotFoundError as exc:
         raise SensorConfigError(f"no sensor description given and tactile_bringup is not installed: "
                                 f"source scripts/env.sh (after `make setup`) or set {SENSOR_ENV}") from exc
-    return Path(share) / "config" / "sensor.yaml"
+    return Path(share) / "config"
 
 
 def load_sensor(path: str | os.PathLike | None = None) -> SensorDescription:

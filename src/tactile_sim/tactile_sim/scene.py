@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_description import BinGrid, SensorDescription, default_sensor_path
+from tactile_description import BinGrid, SensorDescription, installed_config_dir
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_description.yaml_fields import YamlFields, load_yaml_file
 from tactile_sim.contact import MAX_FRICTION, Contact, FlatPunch, Shape, Sphere, press_problem, shear_problem
@@ -403,8 +403,9 @@ class Scene:
 
 
 def scenes_directory() -> Path:
-    """Where the installed scenes live: next to the installed default sensor description."""
-    return default_sensor_path().parent / "scenes"
+    """Where the installed scenes live: tactile_bringup's config/scenes. Not next to $TACTILE_SENSOR_CONFIG: a user's
+    own sensor file elsewhere left every scene name unknown ("installed scenes are []", found in review)."""
+    return installed_config_dir() / "scenes"
 
 
 def parse_scene(raw, source: str = "scene") -> Scene:

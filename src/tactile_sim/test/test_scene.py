@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_description import load_sensor
+from tactile_description import SENSOR_ENV, load_sensor
 from tactile_sim.contact import FlatPunch, Sphere, max_depth_m
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import load_scene, parse_scene, scenes_directory
@@ -264,3 +264,13 @@ def test_exponent_floats_in_a_scene_file_are_numbers(tmp_path, sensor):
     frames = _all_contacts(load_scene(path, sensor), sensor)
     assert [c.depth_m for (c,) in frames] == pytest.approx([0.5e-3, 1e-3])
     assert frames[0][0].x_m == pytest.approx(24.5e-3)
+
+
+def test_installed_scenes_are_found_by_name_with_the_sensor_description_elsewhere(monkeypatch, tmp_path):
+    """$TACTILE_SENSOR_CONFIG pointing at a user's own sensor file made every scene name unknown: the scenes were
+    looked up next to it ("installed scenes are []", found in review)."""
+    own = tmp_path / "my_sensor.yaml"
+    own.write_text((scenes_directory().parent / "skin_3x3.yaml").read_text())
+    monkeypatch.setenv(SENSOR_ENV, str(own))
+    assert scenes_directory() != tmp_path / "scenes"
+    assert load_scene("demo", load_sensor()).name == "demo"
