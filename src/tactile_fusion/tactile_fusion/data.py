@@ -15,6 +15,7 @@ from tqdm import tqdm
 from tactile_description import SensorDescription
 from tactile_description.value_checks import is_whole_number
 from tactile_sim import DatasetError, Scene, Simulator, open_dataset
+from tactile_sim.dataset import check_made_for
 
 #: Train / validation / test fractions (the paper's split).
 SPLIT_FRACTIONS = (0.7, 0.1, 0.2)
@@ -171,6 +172,7 @@ def load_dataset_frames(path: str | Path, sensor: SensorDescription) -> FrameSet
     if ds.forces.shape != (n, sensor.grid.rows, sensor.grid.cols, 3) or ds.reference.shape != (c, h, w):
         raise DatasetMismatchError(f"dataset {path}: forces {ds.forces.shape} / reference {ds.reference.shape} do "
                                    f"not match its {n} frames of {c} x {h} x {w} images; rewrite the dataset")
+    check_made_for(ds, sensor)  # after the ids, grid and image size, whose own messages say more
     bad = first_non_finite_frame(ds.forces)
     if bad is not None:
         raise DatasetError(f"dataset {path}: forces.npy holds NaN or Inf, first in frame {bad}; the file is damaged or "

@@ -159,6 +159,13 @@ def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sens
     skin = load_sensor(CONFIG / "skin_3x3.yaml")
     with pytest.raises(DatasetMismatchError, match=r"cameras \['cam0', 'cam1', 'cam2', 'cam3'\].*regenerate"):
         load_dataset_frames(path, skin)
+    # Same camera ids, grid and image size, another sensor (a softer gel): its images and forces are not this
+    # sensor's. Only ids, grid and image size were compared, and it trained a model without a word (found in review).
+    softer = replace(sensor, name="softer", gel_layers=tuple(
+        replace(layer, youngs_modulus_pa=layer.youngs_modulus_pa / 2) for layer in sensor.gel_layers))
+    with pytest.raises(DatasetError, match=rf"{path} was made for sensor '{sensor.name}' with another description "
+                                           r"than 'softer' .*; regenerate it for this sensor"):
+        load_dataset_frames(path, softer)
 
 
 def test_a_dataset_with_non_finite_forces_is_refused_naming_the_file_and_the_frame(sensor, tmp_path):

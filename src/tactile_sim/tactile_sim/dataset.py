@@ -232,7 +232,16 @@ def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = Non
                                f"{shape}; the directory mixes data sets: regenerate it")
         arrays[name] = array
     _read_contacts(directory, n)
-    if sensor is not None and meta.get("sensor_sha256") != sensor_sha256(sensor):
-        raise DatasetError(f"{directory} was made for sensor {meta.get('sensor_name')!r} with another description "
+    dataset = Dataset(path=directory, meta=meta, **arrays)
+    if sensor is not None:
+        check_made_for(dataset, sensor)
+    return dataset
+
+
+def check_made_for(dataset: Dataset, sensor: SensorDescription) -> None:
+    """Refuse (DatasetError) a data set made with another sensor description than `sensor`: same camera ids and bin
+    grid, say, but another gel, camera pose or surface, whose images and forces are not this sensor's."""
+    meta = dataset.meta
+    if meta.get("sensor_sha256") != sensor_sha256(sensor):
+        raise DatasetError(f"{dataset.path} was made for sensor {meta.get('sensor_name')!r} with another description "
                            f"than {sensor.name!r} ({sensor.source}); regenerate it for this sensor")
-    return Dataset(path=directory, meta=meta, **arrays)
