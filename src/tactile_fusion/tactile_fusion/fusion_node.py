@@ -93,6 +93,7 @@ class FusionNode(Node):
             self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
         self.bundles_with_problems = 0
+        self.cameras_in_bundles: set[str] = set()  # every camera id a bundle has held (other_sensor_hint)
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
         self.sequence = BundleSequence()
         self.forces_pub = self.create_publisher(ForceDistribution, ESTIMATE_TOPIC, 10)
@@ -147,6 +148,7 @@ class FusionNode(Node):
         if is_malformed_bundle(bundle.camera_ids, bundle.images):
             self.report_problems(bundle.sequence, problems)
             return  # neither estimated nor counted towards the reference frames
+        self.cameras_in_bundles.update(bundle.camera_ids)
         try:
             result = self.live.add(images, camera_ok)
         except (InputError, FloatingPointError) as exc:
@@ -160,7 +162,7 @@ class FusionNode(Node):
         absent = [c for c in self.sensor.camera_ids if c not in bundle.camera_ids]
         if absent:  # an empty bundle too, of which nothing is published
             problems.append((f"no image of {', '.join(absent)}", "missing from the bundle: the bundle node leaves out "
-                             "a camera that fell silent (its log says since when)"))
+                             "a camera that fell silent (its log says since when)" + self.other_sensor_hint(absent)))
         self.report_problems(bundle.sequence, problems)
         self.report_reference_match(result.match_changed)
         self.report_frozen(result.frozen_changed)
@@ -210,8 +212,9 @@ class FusionNode(Node):
                     f"capturing the reference: no usable image of {self.camera_names(~result.camera_ok)} "
                     f"({reference.frames_taken} of {reference.count} complete bundles so far); after "
                     f"{reference.patience} bundles it is taken without the cameras missing from the last "
-                    f"{reference.count}, which are then not used until it is taken again",
-                    throttle_duration_sec=5.0)
+                    f"{reference.count}, which are then not used until it is taken again"
+                    + self.other_sensor_hint(c for c, ok in zip(self.sensor.camera_ids, result.camera_ok, strict=True)
+                                             if not ok), throttle_duration_sec=5.0)
             return
         if reference.cameras.all():
             self.get_logger().info("reference frames captured: publishing forces")
@@ -258,6 +261,16 @@ class FusionNode(Node):
                     "estimates does not follow the surface (it stays in camera_ids)")
             else:
                 self.get_logger().info(f"{name}'s images change again")
+
+    def other_sensor_hint(self, cameras) -> str:
+        """For cameras that no bundle has held since start: the bundle node may bundle another sensor's cameras (it
+        ran with another sensor_config), which its own log, naming the cameras it bundles, shows; "" for none."""
+        never = [c for c in cameras if c not in self.cameras_in_bundles]
+        if not never:
+            return ""
+        return (f"; no bundle has held {', '.join(never)} since this node started: dead since, or the bundle node "
+                f"runs with another sensor description than this node's {self.sensor.source} (its log names the "
+                "cameras it bundles)")
 
     def camera_names(self, mask) -> str:
         return ", ".join(c for c, m in zip(self.sensor.camera_ids, mask, strict=True) if m)
