@@ -98,13 +98,20 @@ class Monitor(Node):
             self.matched.append((estimate, truth))
             self.last = (float(estimate[..., 2].sum()), float(truth[..., 2].sum()))
 
+    def rate_hz(self) -> float:
+        """Estimates a second over the span of their arrivals. One over the median interval between arrivals, as it
+        was, counted a burst of estimates delivered together as a high rate: 141.8 Hz from cameras at 35 Hz on a loaded
+        machine (found in review)."""
+        if len(self.arrivals_s) < 2 or self.arrivals_s[-1] <= self.arrivals_s[0]:
+            return 0.0
+        return (len(self.arrivals_s) - 1) / (self.arrivals_s[-1] - self.arrivals_s[0])
+
     def summary(self, duration_s: float) -> dict:
-        periods = np.diff(self.arrivals_s)
         metrics = force_metrics(*map(np.stack, zip(*self.matched, strict=True))) if self.matched else {}
         return {
             "duration_s": duration_s,
             "estimates": len(self.arrivals_s),
-            "rate_hz": float(1.0 / statistics.median(periods)) if len(periods) else 0.0,
+            "rate_hz": self.rate_hz(),
             "latency_ms_median": 1e3 * statistics.median(self.latencies_s) if self.latencies_s else None,
             "matched_with_ground_truth": len(self.matched),
             "rmse_bin_n": metrics.get("rmse_bin_n"),
