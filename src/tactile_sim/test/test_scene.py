@@ -179,6 +179,12 @@ def _random(**body):
     (_grid(jitter_mm=1000), r"press_grid.jitter_mm \(1000 mm\) would move presses off the surface: .* 12.25 mm"),
     (_press(shear_mm=[3.0, 4.0]), r"timeline\[0\].press.shear_mm: a shear of 5 mm is longer than the 4 mm"),
     (_random(shear_mm=[0.0, 10.0]), r"random_presses.shear_mm: a shear of 10 mm"),
+    # a 10 mm sphere 1 mm deep touches within sqrt(5 x 1) = 2.24 mm of its centre: 3 mm off the surface, nothing
+    (_press(x_mm=-3, y_mm=20), r"timeline\[0\].press: a press at \(-3, 20\) mm is 3 mm off the 49 x 51 mm surface, "
+                               r"beyond the 2.24 mm its contact reaches at its deepest: it would press nothing"),
+    (_scene(timeline=[{"contacts": {"contacts": [{"x_mm": 10, "y_mm": 10, "depth_mm": 1.0},
+                                                 {"x_mm": 60, "y_mm": 60, "depth_mm": 1.0}]}}]),
+     r"timeline\[0\].contacts.contacts\[1\]: a press at \(60, 60\) mm is 14.2 mm off"),
 ])
 def test_presses_outside_the_models_or_off_the_surface_are_refused_before_any_frame(sensor, raw, message):
     scene = parse_scene(raw, "test.yaml")
@@ -186,6 +192,13 @@ def test_presses_outside_the_models_or_off_the_surface_are_refused_before_any_fr
         scene.validate(sensor)
     with pytest.raises(SceneError, match=message):
         next(scene.contacts(sensor))
+
+
+def test_a_press_off_the_edge_that_still_touches_the_surface_is_taken(sensor):
+    """2 mm off, within the 2.24 mm a 10 mm sphere 1 mm deep reaches: part of its contact is on the surface."""
+    scene = parse_scene(_press(x_mm=-2, y_mm=20), "test.yaml")
+    scene.validate(sensor)
+    assert next(scene.contacts(sensor))[0].x_m == pytest.approx(-0.002)
 
 
 def test_each_contact_is_checked_against_its_own_indenter(sensor):
