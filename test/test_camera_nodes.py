@@ -8,6 +8,7 @@ import itertools
 import re
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,6 +119,9 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (BundleNode, {"sensor_config": "/no/such/sensor.yaml"}, "tactile_bundle: parameter sensor_config: "),
     (SimCameraNode, {"scene": "no_such_scene"}, "tactile_sim_cameras: parameter scene: no scene file 'no_such_scene'"),
     (FusionNode, {"model_dir": "/no/such/model"}, "tactile_fusion: parameter model_dir: no model in /no/such/model"),
+    # the shipped model, for the reference sensor, refused for another without naming it (found in review)
+    (FusionNode, {"sensor_config": str(Path(CONFIG).parent / "skin_3x3.yaml")},
+     "tactile_fusion: parameter model_dir (empty: the shipped model, "),
     (FusionNode, {"backend": "tensorrt"}, "parameters backend and precision: backend must be one of ['onnxruntime', "
                                           "'torch'], got 'tensorrt'"),
     (FusionNode, {"reference_bundles": "2.5"}, "parameter reference_bundles must be a whole number from 1 to 400, "

@@ -52,7 +52,7 @@ from tactile_conversions.parameters import (
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components
-from tactile_fusion.artifacts import ModelFileError, threshold_text
+from tactile_fusion.artifacts import ModelFileError, default_model_dir, threshold_text
 from tactile_fusion.inference import DEFAULT_THREADS, MAX_THREADS, InputError, check_backend, load_predictor
 from tactile_fusion.live_estimation import (
     MAX_REFERENCE_BUNDLES,
@@ -87,8 +87,10 @@ class FusionNode(Node):
         with refused_as(self, "parameters backend and precision", ValueError):
             check_backend(backend, precision)
         self.sensor = sensor_description(self)
-        # A model directory that is missing, damaged, of two models mixed, or of another sensor.
-        with refused_as(self, "parameter model_dir", ModelFileError):
+        # A model directory that is missing, damaged, of two models mixed, or of another sensor; left empty, the
+        # shipped model, which the refusal names: it is for the reference sensor only.
+        where = f"parameter model_dir{'' if model_dir else f' (empty: the shipped model, {default_model_dir()})'}"
+        with refused_as(self, where, ModelFileError):
             self.predictor = load_predictor(model_dir or None, backend, precision, threads)
             self.live = LiveEstimation(self.predictor, self.sensor, reference_bundles)
         self.image_shape = (self.predictor.image_size, self.predictor.image_size)
