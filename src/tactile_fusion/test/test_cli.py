@@ -473,6 +473,24 @@ def test_ctrl_c_during_training_says_the_checkpoints_resume_it(tmp_path):
     assert "Traceback" not in result.stderr and checkpoint["train_config"]["max_epochs"] == 500
 
 
+def test_hard_cases_another_sensor_cannot_play_are_left_out_saying_why(tmp_path):
+    """The effects scene names cameras cam1-cam3: on a sensor with other camera ids `eval --hard-cases` ended with
+    that scene's error and evaluated nothing (found in review)."""
+    sensor = tmp_path / "renamed.yaml"
+    sensor.write_text((CONFIG / "sensor.yaml").read_text().replace("{id: cam", "{id: c"))
+    out = tmp_path / "model"
+    run("train", "--sensor", str(sensor), "--frames", "30", "--epochs", "1", "--head-epochs", "1", "--out", str(out),
+        *TINY)
+    report = json.loads(run("eval", "--sensor", str(sensor), "--model", str(out), "--hard-cases", "--frames", "3",
+                            "--json").stdout)
+    assert set(report["hard_cases_left_out"]) == {"effects"}
+    assert "names cameras ['cam1'], but the sensor's cameras are ['c0', 'c1', 'c2', 'c3']" in \
+        report["hard_cases_left_out"]["effects"]
+    assert {"edge_corner", "multi_contact", "shear"} <= set(report["data_sets"])
+    text = run("eval", "--sensor", str(sensor), "--model", str(out), "--hard-cases", "--frames", "3").stdout
+    assert "hard case effects left out: this sensor cannot play it (" in text
+
+
 def test_a_model_for_another_sensor_is_refused(tiny_model):
     out, _ = tiny_model
     result = run("eval", "--model", str(out), "--sensor", str(CONFIG / "skin_3x3.yaml"), "--frames", "2",
