@@ -8,7 +8,7 @@ from sensor_msgs.msg import Image
 
 from tactile_bringup.graph import NodeSpec
 from tactile_bringup.processes import spin_until, start_node, stop_nodes
-from tactile_camera_driver.camera_node import is_video_file
+from tactile_camera_driver.camera_node import is_video_file, missing_file
 from tactile_conversions.images import msg_to_array
 from tactile_description import default_sensor_path, load_sensor
 from tactile_description.imaging import crop_and_downsample
@@ -157,3 +157,12 @@ def test_a_video_file_without_loop_is_played_once_and_the_node_says_it_ended(ros
     # writer (nothing can wait for that), so a missing prefix is allowed.
     assert frames and frames[-1] == VIDEO_FRAMES - 1, frames
     assert frames == sorted(set(frames)), frames  # strictly increasing: no repeat, no replay
+
+
+def test_no_such_file_is_said_of_a_path_that_names_nothing_only(tmp_path):
+    """Not of a device index, an image sequence's pattern, a file that is there, or a stream's URL (which names no
+    file: OpenCV opens rtsp:// and http:// through FFmpeg; found in review)."""
+    assert missing_file(str(tmp_path / "no_such_file.avi")) == ", no such file"
+    video = write_video(tmp_path / "there.avi", 320, 240)
+    for source in (0, str(tmp_path / "img_%04d.png"), str(video), "rtsp://192.168.1.5/stream"):
+        assert missing_file(source) == "", source

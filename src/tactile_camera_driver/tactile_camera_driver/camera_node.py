@@ -60,8 +60,9 @@ def is_video_file(source: int | str) -> bool:
 
 def missing_file(source: int | str) -> str:
     """", no such file" for a path that names nothing (a mistyped video file, or a device not plugged in yet), else
-    "": a source that exists and cannot be opened is another matter (a busy device, an unreadable video)."""
-    if isinstance(source, str) and "%" not in source and not Path(source).exists():
+    "": a source that exists and cannot be opened is another matter (a busy device, an unreadable video), and so is a
+    stream's URL (rtsp://...), which names no file."""
+    if isinstance(source, str) and "%" not in source and "://" not in source and not Path(source).exists():
         return ", no such file"
     return ""
 

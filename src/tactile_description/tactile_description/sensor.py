@@ -207,21 +207,24 @@ def default_sensor_path() -> Path:
     override = os.environ.get(SENSOR_ENV)
     if override:
         return Path(override)
-    return installed_config_dir() / "sensor.yaml"
+    try:
+        return installed_config_dir() / "sensor.yaml"
+    except SensorConfigError as exc:
+        raise SensorConfigError(f"no sensor description given, and {exc}; or set {SENSOR_ENV}") from exc
 
 
 def installed_config_dir() -> Path:
-    """tactile_bringup's installed config directory: the default sensor description and the simulator's scenes."""
+    """tactile_bringup's installed config directory: the default sensor description and the simulator's scenes.
+    SensorConfigError where tactile_bringup is not installed."""
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
     except ImportError as exc:  # pragma: no cover - only without any ROS 2 Python packages
-        raise SensorConfigError(f"no sensor description given: set {SENSOR_ENV} or install "
-                                "ament_index_python and tactile_bringup") from exc
+        raise SensorConfigError("ament_index_python, which finds tactile_bringup's config, is not installed") from exc
     try:
         share = get_package_share_directory("tactile_bringup")
     except PackageNotFoundError as exc:
-        raise SensorConfigError(f"no sensor description given and tactile_bringup is not installed: "
-                                f"source scripts/env.sh (after `make setup`) or set {SENSOR_ENV}") from exc
+        raise SensorConfigError("tactile_bringup, which installs the default sensor description and the scenes, is "
+                                "not installed: source scripts/env.sh (after `make setup`)") from exc
     return Path(share) / "config"
 
 

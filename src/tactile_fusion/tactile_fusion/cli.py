@@ -277,8 +277,8 @@ def cmd_eval(args) -> int:
         print(metrics_table(results))
         print()
         print(contact_table({name: m["contact"] for name, m in results.items()}))
-        for name, why in skipped.items():
-            print(f"hard case {name} left out: this sensor cannot play it ({why})")
+    for name, why in skipped.items():  # on stderr: with --json too, beside the report's hard_cases_left_out
+        print(f"tactile-fusion eval: hard case {name} left out: this sensor cannot play it ({why})", file=sys.stderr)
     return 0
 
 

@@ -487,8 +487,8 @@ def test_hard_cases_another_sensor_cannot_play_are_left_out_saying_why(tmp_path)
     assert "names cameras ['cam1'], but the sensor's cameras are ['c0', 'c1', 'c2', 'c3']" in \
         report["hard_cases_left_out"]["effects"]
     assert {"edge_corner", "multi_contact", "shear"} <= set(report["data_sets"])
-    text = run("eval", "--sensor", str(sensor), "--model", str(out), "--hard-cases", "--frames", "3").stdout
-    assert "hard case effects left out: this sensor cannot play it (" in text
+    stderr = run("eval", "--sensor", str(sensor), "--model", str(out), "--hard-cases", "--frames", "3").stderr
+    assert "tactile-fusion eval: hard case effects left out: this sensor cannot play it (" in stderr
 
 
 def test_a_model_for_another_sensor_is_refused(tiny_model):

@@ -164,7 +164,8 @@ def test_dataset_written_by_the_simulator_loads_and_a_mismatch_is_explained(sens
     softer = replace(sensor, name="softer", gel_layers=tuple(
         replace(layer, youngs_modulus_pa=layer.youngs_modulus_pa / 2) for layer in sensor.gel_layers))
     with pytest.raises(DatasetError, match=rf"{path} was made for sensor '{sensor.name}' with another description "
-                                           r"than 'softer' .*; regenerate it for this sensor"):
+                                           r"than 'softer' .*; pass the sensor description it was made with "
+                                           r"\(--sensor\), or regenerate it for this sensor"):
         load_dataset_frames(path, softer)
 
 

@@ -244,4 +244,5 @@ def check_made_for(dataset: Dataset, sensor: SensorDescription) -> None:
     meta = dataset.meta
     if meta.get("sensor_sha256") != sensor_sha256(sensor):
         raise DatasetError(f"{dataset.path} was made for sensor {meta.get('sensor_name')!r} with another description "
-                           f"than {sensor.name!r} ({sensor.source}); regenerate it for this sensor")
+                           f"than {sensor.name!r} ({sensor.source}); pass the sensor description it was made with "
+                           "(--sensor), or regenerate it for this sensor")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_description import BinGrid, SensorDescription, installed_config_dir
+from tactile_description import BinGrid, SensorConfigError, SensorDescription, installed_config_dir
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_description.yaml_fields import YamlFields, load_yaml_file
 from tactile_sim.contact import MAX_FRICTION, Contact, FlatPunch, Shape, Sphere, press_problem, shear_problem
@@ -477,7 +477,10 @@ def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None
     """
     path = Path(path_or_name)
     if not path.is_file() and path.suffix in ("", ".yaml") and path.parent == Path("."):
-        path = scenes_directory() / f"{path.stem}.yaml"
+        try:
+            path = scenes_directory() / f"{path.stem}.yaml"
+        except SensorConfigError as exc:  # where the scenes would be installed: a scene's error, as for the rest
+            raise SceneError(f"no scene file {path_or_name!r}, and {exc}") from exc
         if not path.exists():
             known = sorted(p.stem for p in path.parent.glob("*.yaml"))
             raise SceneError(f"no scene file {path_or_name!r} and no installed scene of that name; installed scenes "

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tactile_description import SENSOR_ENV, load_sensor
+from tactile_description import SENSOR_ENV, SensorConfigError, load_sensor
 from tactile_sim.contact import FlatPunch, Sphere, max_depth_m
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import load_scene, parse_scene, scenes_directory
@@ -287,3 +287,19 @@ def test_installed_scenes_are_found_by_name_with_the_sensor_description_elsewher
     monkeypatch.setenv(SENSOR_ENV, str(own))
     assert scenes_directory() != tmp_path / "scenes"
     assert load_scene("demo", load_sensor()).name == "demo"
+
+
+def test_without_tactile_bringup_installed_a_scene_name_is_a_scene_error_saying_so(monkeypatch, tmp_path):
+    """With $TACTILE_SENSOR_CONFIG set, the error said no description was given and to set that variable, and it was
+    a SensorConfigError, which the nodes and eval's hard cases do not take for a scene's (found in review)."""
+    own = tmp_path / "my_sensor.yaml"
+    own.write_text((scenes_directory().parent / "sensor.yaml").read_text())
+    monkeypatch.setenv(SENSOR_ENV, str(own))
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path))
+    with pytest.raises(SceneError, match="no scene file 'demo', and tactile_bringup, which installs the default sensor "
+                                         "description and the scenes, is not installed: source scripts/env.sh"):
+        load_scene("demo")
+    monkeypatch.delenv(SENSOR_ENV)
+    with pytest.raises(SensorConfigError, match=f"no sensor description given, and tactile_bringup, .*; or set "
+                                                f"{SENSOR_ENV}"):
+        load_sensor()
