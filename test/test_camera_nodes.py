@@ -159,6 +159,14 @@ def test_bad_parameter_values_are_refused_naming_the_parameter(ros_args_node, no
     assert message in str(refused.value)
 
 
+@pytest.mark.parametrize("node_class", [SimCameraNode, CameraNode, BundleNode, FusionNode])
+def test_each_node_says_which_sensor_description_it_uses(ros_args_node, capfd, node_class):
+    """A misspelt `-p sensor_configs:=...` left a node on the default sensor without a word (found in review): each
+    node names the description it took, once it has accepted its parameters (a refusal stays one line, below)."""
+    ros_args_node(node_class, {"sensor_configs": "/my/skin.yaml"})
+    assert f"sensor description 'trueeb2020_4cam' (4 cameras, 26 x 25 bins) from {CONFIG}" in capfd.readouterr().err
+
+
 @pytest.mark.parametrize("executable, parameter, line", [
     ("sim_camera_node", "loop:=0", "tactile_sim_cameras: parameter loop must be a bool (true or false), got 0"),
     ("camera_node", "rate_hz:=1e12", "tactile_camera: parameter rate_hz must be at most 1000 Hz, got 1000000000000.0"),

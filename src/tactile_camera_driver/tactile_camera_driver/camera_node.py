@@ -39,6 +39,7 @@ from tactile_conversions.parameters import (
     DYNAMIC,
     ParameterError,
     boolean,
+    log_sensor_description,
     positive_float,
     rate_hz,
     sensor_description,
@@ -98,6 +99,7 @@ class CameraNode(Node):
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
         self.timer = self.create_timer(1.0 / self.frame_rate_hz, self.grab)
+        log_sensor_description(self, sensor)
 
     def declare_source(self) -> int | str:
         """The `source` parameter as OpenCV takes it: a device index (an integer >= 0, or a string of digits:

@@ -38,6 +38,7 @@ from tactile_conversions.node_main import run_node
 from tactile_conversions.parameters import (
     ParameterError,
     boolean,
+    log_sensor_description,
     positive_float,
     rate_hz,
     refused_as,
@@ -75,6 +76,7 @@ class SimCameraNode(Node):
         self.playing = False  # until its listeners are there (module docstring, `listened`)
         self.timer = self.create_timer(1.0 / frame_rate_hz, self.publish_frame)
         awaited = f" and nodes {list(self.awaited_nodes)} subscribe" if self.awaited_nodes else " are subscribed"
+        log_sensor_description(self, self.sensor)
         self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at "
                                f"{frame_rate_hz:.1f} Hz for cameras {list(self.sensor.camera_ids)}, from its first "
                                f"frame once their images{awaited}")

@@ -117,14 +117,18 @@ def text(node: Node, name: str, default: str) -> str:
 def sensor_description(node: Node) -> SensorDescription:
     """Declare parameter `sensor_config` and return the sensor description it names (empty: the default, see
     tactile_description.load_sensor). A description that cannot be read or is not valid raises ParameterError naming
-    the node, the parameter and what is wrong with the file. The node logs which description it uses: a misspelt
-    parameter (`-p sensor_configs:=...`) left it on the default sensor without a word (found in review)."""
+    the node, the parameter and what is wrong with the file."""
     path = text(node, "sensor_config", "")
     with refused_as(node, "parameter sensor_config", SensorConfigError):
-        sensor = load_sensor(path or None)
+        return load_sensor(path or None)
+
+
+def log_sensor_description(node: Node, sensor: SensorDescription) -> None:
+    """Say which sensor description a node uses: a misspelt parameter (`-p sensor_configs:=...`) left it on the default
+    sensor without a word (found in review). Logged once the node has accepted all its parameters, so that a refusal
+    stays one line."""
     node.get_logger().info(f"sensor description {sensor.name!r} ({sensor.n_cameras} cameras, {sensor.grid.rows} x "
                            f"{sensor.grid.cols} bins) from {sensor.source}")
-    return sensor
 
 
 @contextlib.contextmanager

@@ -17,11 +17,9 @@ from tactile_conversions.parameters import (
     period_s,
     positive_float,
     rate_hz,
-    sensor_description,
     text,
     whole_number,
 )
-from tactile_description import default_sensor_path
 
 
 @pytest.fixture
@@ -139,16 +137,3 @@ def test_a_switch_or_a_name_of_another_type_is_refused_naming_the_parameter(node
     with pytest.raises(ParameterError) as refused:
         helper(node_with(value), "period_s", default)
     assert message in str(refused.value)
-
-
-def test_the_sensor_description_a_node_uses_is_logged(capfd):
-    """A misspelt `-p sensor_configs:=...` left a node on the default sensor without a word (found in review)."""
-    rclpy.init()
-    node = Node("parameters_test", parameter_overrides=[Parameter("sensor_configs", value="/my/skin.yaml")])
-    try:
-        sensor = sensor_description(node)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    assert f"sensor description 'trueeb2020_4cam' (4 cameras, 26 x 25 bins) from {default_sensor_path()}" in \
-        capfd.readouterr().err and sensor.n_cameras == 4

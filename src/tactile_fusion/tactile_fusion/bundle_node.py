@@ -34,7 +34,13 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from tactile_conversions.node_main import run_node
-from tactile_conversions.parameters import period_s, positive_float, sensor_description, whole_number
+from tactile_conversions.parameters import (
+    log_sensor_description,
+    period_s,
+    positive_float,
+    sensor_description,
+    whole_number,
+)
 from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
@@ -77,6 +83,7 @@ class BundleNode(Node):
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
         self.create_timer(self.camera_timeout_s / 2, self.check_cameras)
         self.create_timer(1.0, self.report_drops)
+        log_sensor_description(self, self.sensor)
         self.get_logger().info(f"bundling cameras {list(self.sensor.camera_ids)} "
                                f"(max spread {self.max_spread_s * 1e3:.1f} ms, a grouping kept while within "
                                f"{self.keep_grouping_s * 1e3:.1f} ms of the tightest)")

@@ -43,6 +43,7 @@ from tactile_conversions.node_main import run_node
 from tactile_conversions.parameters import (
     ParameterError,
     boolean,
+    log_sensor_description,
     rate_hz,
     refused_as,
     sensor_description,
@@ -103,6 +104,7 @@ class FusionNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, 10)
         self.create_subscription(ImageBundle, BUNDLE_TOPIC, self.on_bundle, 10)
         self.create_service(Trigger, "~/capture_reference", self.on_capture_reference)
+        log_sensor_description(self, self.sensor)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
                                f"the reference from the next {reference_bundles} bundles: do not touch")
         left_out = left_out_components(self.predictor.components)

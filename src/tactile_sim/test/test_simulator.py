@@ -1,3 +1,4 @@
+import re
 import tracemalloc
 
 import numpy as np
@@ -8,6 +9,7 @@ from hypothesis import strategies as st
 from tactile_description import load_sensor
 from tactile_sim import Simulator, load_scene
 from tactile_sim.contact import Contact, Sphere
+from tactile_sim.effects import SceneError
 from tactile_sim.scene import parse_scene, scenes_directory
 
 
@@ -105,5 +107,12 @@ def test_any_allowed_press_gives_finite_forces_and_valid_images(sim, x_mm, y_mm,
         {"x_mm": c.x_m * 1e3, "y_mm": c.y_m * 1e3, "depth_mm": c.depth_m * 1e3,
          "shear_mm": [v * 1e3 for v in c.shear_m]} for c in contacts]}}],
         "effects": [{"type": "sensor_noise", "sigma": 3.0}, {"type": "exposure_saturation", "gain": 3.0}]})
+    try:
+        scene.validate(sim.sensor)
+    except SceneError as exc:  # a contact the scene refuses as touching nothing must indeed press nothing
+        refused = re.search(r"contacts\[(\d+)\]: a press at .* it would press nothing", str(exc))
+        assert refused, exc
+        assert np.abs(sim.bin_forces([contacts[int(refused.group(1))]])).max() < 1e-9  # newtons: none to speak of
+        return
     frame = next(sim.stream(scene))
     assert frame.images.dtype == np.uint8 and frame.images.max() == 255  # saturated, clipped, not wrapped
