@@ -263,6 +263,13 @@ class AxisymmetricLoad:
         return self.radius_m * np.sqrt(u * (2.0 - u))
 
 
+def contact_radius_m(shape: Sphere | FlatPunch, depth_m: float) -> float:
+    """Radius of the contact of `shape` pressed `depth_m` deep: Hertz's a = sqrt(R d) for a sphere, the punch's own."""
+    if isinstance(shape, Sphere):
+        return math.sqrt(shape.radius_m * depth_m)
+    return shape.radius_m
+
+
 def normal_load(layer: CompliantLayer, shape: Sphere | FlatPunch, depth_m: float) -> AxisymmetricLoad:
     """Hertz / Sneddon normal load on the layer, stiffened for its finite thickness.
 
@@ -272,11 +279,11 @@ def normal_load(layer: CompliantLayer, shape: Sphere | FlatPunch, depth_m: float
     e_star = layer.plane_strain_modulus_pa
     h = layer.thickness_m
     if isinstance(shape, Sphere):
-        a = math.sqrt(shape.radius_m * depth_m)
+        a = contact_radius_m(shape, depth_m)
         force = 4.0 / 3.0 * e_star * math.sqrt(shape.radius_m) * depth_m**1.5 * dimitriadis_factor(a / h)
         return AxisymmetricLoad(force, a, "hertz")
     if isinstance(shape, FlatPunch):
-        a = shape.radius_m
+        a = contact_radius_m(shape, depth_m)
         return AxisymmetricLoad(2.0 * e_star * a * depth_m * shull_punch_factor(a / h), a, "punch")
     raise ValueError(f"the analytic model takes Sphere and FlatPunch indenters, got {type(shape).__name__}: "
                      f"use ground_truth_model(sensor, 'numerical') for height maps")

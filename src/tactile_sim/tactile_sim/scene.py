@@ -25,7 +25,16 @@ import numpy as np
 from tactile_description import BinGrid, SensorConfigError, SensorDescription, installed_config_dir
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_description.yaml_fields import YamlFields, load_yaml_file
-from tactile_sim.contact import MAX_FRICTION, Contact, FlatPunch, Shape, Sphere, press_problem, shear_problem
+from tactile_sim.contact import (
+    MAX_FRICTION,
+    Contact,
+    FlatPunch,
+    Shape,
+    Sphere,
+    contact_radius_m,
+    press_problem,
+    shear_problem,
+)
 from tactile_sim.effects import MAX_EFFECT_FRAME, EffectContext, EffectSpec, SceneError, parse_effect
 
 MM = 1e-3
@@ -337,23 +346,14 @@ def _check_random_presses(p, where: str, grid: BinGrid) -> None:
                          f"min_separation_mm or contacts_per_frame")
 
 
-def _contact_reach_m(shape: Shape, depth_m: float) -> float:
-    """How far from its centre a contact at `depth_m` touches the gel: the contact radius (a sphere's sqrt(R d), a
-    punch's radius), or for a height map half its diagonal."""
-    if isinstance(shape, Sphere):
-        return math.sqrt(shape.radius_m * depth_m)
-    if isinstance(shape, FlatPunch):
-        return shape.radius_m
-    return 0.5 * shape.pixel_m * math.hypot(*shape.heights_m.shape)
-
-
-def _check_touches(x_m: float, y_m: float, shape: Shape, depth_m: float, where: str, grid: BinGrid) -> None:
+def _check_touches(x_m: float, y_m: float, shape: Sphere | FlatPunch, depth_m: float, where: str, grid: BinGrid
+                   ) -> None:
     """A contact must touch the surface at its deepest: one farther off presses nothing, in every frame. Scenes are in
     mm of the reference sensor's surface, and on a smaller one (a 24.5 mm strip) most of the demo scene's presses
     were off it, accepted without a word, with no force at all (found in review)."""
     off_x = max(-x_m, 0.0, x_m - grid.width_m)
     off_y = max(-y_m, 0.0, y_m - grid.length_m)
-    off, reach = math.hypot(off_x, off_y), _contact_reach_m(shape, depth_m)
+    off, reach = math.hypot(off_x, off_y), contact_radius_m(shape, depth_m)  # scenes press spheres and punches
     if off > 0 and off >= reach:
         raise SceneError(f"{where}: a press at ({x_m / MM:g}, {y_m / MM:g}) mm is {off / MM:.3g} mm off the "
                          f"{grid.width_m / MM:g} x {grid.length_m / MM:g} mm surface, beyond the {reach / MM:.3g} mm "
