@@ -12,7 +12,8 @@
   the per-frame differences is taken, then the median over runs: pairing frames keeps a slow moment of a
   shared machine from landing on one side only. unnamed_effects_ms pairs the stream without effects with the
   bare pipeline calls (ground truth, render, quantise): what the effect machinery costs when a scene names
-  nothing (~0: an unnamed effect does no work). effect_apply_ms times each effect's own call alone.
+  nothing (~0: an unnamed effect does no work, so it may come out slightly below 0, a difference of timing noise).
+  effect_apply_ms times each effect's own call alone.
 - ground_truth: each ground-truth model's cost (contact.benchmark_models).
 """
 

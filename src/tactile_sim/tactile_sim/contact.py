@@ -404,6 +404,19 @@ def press_contact(x_mm: float, y_mm: float, depth_mm: float, shape: str = "spher
                    friction)
 
 
+def contact_record(contact: Contact) -> dict:
+    """A contact as `tactile-sim press --json` and a data set's contacts.json write it, in millimetres as scenes give
+    it. Rounded to the picometre (1e-9 mm): a scene's 25.5 mm, held in metres, came back as 25.500000000000004."""
+    def mm(value_m: float) -> float:
+        return round(value_m * 1e3, 9)
+
+    shape = contact.shape
+    return {"x_mm": mm(contact.x_m), "y_mm": mm(contact.y_m), "depth_mm": mm(contact.depth_m),
+            "shape": type(shape).__name__,
+            "radius_mm": mm(shape.radius_m) if isinstance(shape, (Sphere, FlatPunch)) else None,
+            "shear_mm": [mm(v) for v in contact.shear_m], "friction": contact.friction}
+
+
 def press_report(sensor: SensorDescription, contact: Contact, model: GroundTruthModel) -> dict:
     """The JSON object `tactile-sim press --json` prints: the bin forces of one contact and their total. A shear the
     scenes refuse (shear_problem) is refused here too (ValueError)."""
@@ -411,16 +424,10 @@ def press_report(sensor: SensorDescription, contact: Contact, model: GroundTruth
     if problem is not None:
         raise ValueError(f"Contact: {problem}")
     forces = model.bin_forces([contact])
-    shape = contact.shape
     return {
         "sensor": sensor.name,
         "model": model.name,
-        "contact": {
-            "x_mm": contact.x_m * 1e3, "y_mm": contact.y_m * 1e3, "depth_mm": contact.depth_m * 1e3,
-            "shape": type(shape).__name__,
-            "radius_mm": shape.radius_m * 1e3 if isinstance(shape, (Sphere, FlatPunch)) else None,
-            "shear_mm": [v * 1e3 for v in contact.shear_m], "friction": contact.friction,
-        },
+        "contact": contact_record(contact),
         "rows": sensor.grid.rows,
         "cols": sensor.grid.cols,
         "total_force_n": forces.sum(axis=(0, 1)).tolist(),

@@ -9,7 +9,7 @@ Format (version 1), for N frames, C cameras of H x W pixels, a rows x cols bin g
   forces.npy       (N, rows, cols, 3) float32  ground-truth bin forces (fx, fy, fz), newtons, fz > 0 pressing
   camera_ok.npy    (N, C) bool         False where a camera dropped out or froze
   times_s.npy      (N,) float64        frame times
-  contacts.json    list of N lists of contacts {x_mm, y_mm, depth_mm, shape, radius_mm, shear_mm}
+  contacts.json    list of N lists of contacts {x_mm, y_mm, depth_mm, shape, radius_mm, shear_mm, friction}
 The arrays are written through np.lib.format.open_memmap, so writing a data set holds one frame in memory;
 meta.json says `complete: false` until the last frame is on disk. `open_dataset` maps the arrays read-only.
 """
@@ -29,7 +29,7 @@ from tqdm import tqdm
 from tactile_description import SensorDescription
 from tactile_description.json_file import read_json
 from tactile_description.value_checks import is_whole_number
-from tactile_sim.contact import Contact
+from tactile_sim.contact import contact_record
 from tactile_sim.scene import Scene
 
 FORMAT = "tactile_sim.dataset"
@@ -44,14 +44,6 @@ class DatasetError(ValueError):
 def sensor_sha256(sensor: SensorDescription) -> str:
     """Hash of everything in a sensor description except the file it came from."""
     return hashlib.sha256(repr(dataclasses.replace(sensor, source="")).encode()).hexdigest()
-
-
-def _contact_record(contact: Contact) -> dict:
-    shape = contact.shape
-    radius = getattr(shape, "radius_m", None)
-    return {"x_mm": contact.x_m * 1e3, "y_mm": contact.y_m * 1e3, "depth_mm": contact.depth_m * 1e3,
-            "shape": type(shape).__name__, "radius_mm": None if radius is None else radius * 1e3,
-            "shear_mm": [v * 1e3 for v in contact.shear_m]}
 
 
 def _write_meta(directory: Path, meta: dict) -> None:
@@ -110,7 +102,7 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
             camera_ok[i] = frame.camera_ok
             times[i] = frame.time_s
             separator = ",\n" if i + 1 < n else "\n"
-            contacts_file.write(json.dumps([_contact_record(k) for k in frame.contacts]) + separator)
+            contacts_file.write(json.dumps([contact_record(k) for k in frame.contacts]) + separator)
         contacts_file.write("]\n")
     for array in (images, forces, camera_ok, times):
         array.flush()

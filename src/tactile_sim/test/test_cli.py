@@ -28,6 +28,9 @@ def test_press_json_reports_the_bin_forces():
     forces = np.array(report["bin_forces_n"])
     assert forces.shape == (report["rows"] * report["cols"], 3)
     assert report["total_force_n"][2] == pytest.approx(forces[:, 2].sum()) and report["total_force_n"][2] > 0.5
+    # The press as given, in millimetres: not 25.500000000000004 from its round trip through metres.
+    assert report["contact"] == {"x_mm": 24.5, "y_mm": 25.5, "depth_mm": 1.0, "shape": "Sphere", "radius_mm": 5.0,
+                                 "shear_mm": [0.0, 0.0], "friction": 1.0}
 
 
 def test_generate_writes_a_readable_data_set(tmp_path):

@@ -6,6 +6,7 @@ import pytest
 
 from tactile_description import load_sensor
 from tactile_sim import DatasetError, SceneError, Simulator, load_scene, open_dataset, write_dataset
+from tactile_sim.contact import contact_record
 from tactile_sim.scene import scenes_directory
 
 
@@ -29,6 +30,7 @@ def test_written_data_set_reads_back_as_streamed(sim, written):
         np.testing.assert_array_equal(ds.images[f.index], f.images)
         np.testing.assert_array_equal(ds.forces[f.index], f.bin_forces_n)
         np.testing.assert_array_equal(ds.camera_ok[f.index], f.camera_ok)
+        assert ds.contacts()[f.index] == [contact_record(c) for c in f.contacts]  # as `tactile-sim press` gives one
     np.testing.assert_array_equal(ds.reference, sim.reference_images())
     assert isinstance(ds.images, np.memmap)
     meta = ds.meta
