@@ -100,7 +100,7 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, tmp_
     # Offline evaluation of the live recording: every estimate finds the ground truth of its capture.
     model = build_model(ModelConfig(conv_channels=(4, 4, 4), hidden_features=16, camera_features=8, fusion_rank=4),
                         sensor.camera_ids, sensor.grid.rows, sensor.grid.cols, torch.tensor([1e-3, 1e-3, 1e-2]), 0)
-    save_model(model, tmp_path / "model", sensor.name)
+    save_model(model, tmp_path / "model", sensor)
     evaluated = tactile_bag("eval", str(tmp_path / "bag"), "--model", str(tmp_path / "model"), "--backend", "torch",
                             "--json")
     assert evaluated.returncode == 0, evaluated.stderr

@@ -163,6 +163,19 @@ def test_the_fusion_node_reports_bundles_lost_on_the_way(ros_probe, tmp_path):
     assert "a reference of one bundle: whether the cameras still match it is not checked" in log
     # The shipped model was trained on vertical presses: it says that it publishes no shear.
     assert "the model estimates fz only: fx, fy are published as 0" in log
+    assert "is not the one the model was trained for" not in log  # the shipped model's own description
+
+
+def test_the_fusion_node_warns_of_a_sensor_description_edited_since_its_model_was_trained(ros_probe, tmp_path):
+    """A stiffer top layer in the description: the model fits its cameras and bins, so it runs, with a warning."""
+    stiffer = tmp_path / "stiffer.yaml"
+    stiffer.write_text(Path(default_sensor_path()).read_text().replace("youngs_modulus_kpa: 275.4",
+                                                                       "youngs_modulus_kpa: 400.0"))
+    code, estimates, log = fusion_node_on_bundles(ros_probe, tmp_path, (0, 1, 2), {"sensor_config": str(stiffer)},
+                                                  wait_for=2)
+    assert code == 0 and len(estimates) == 2, log
+    assert (f"the sensor description {stiffer} is not the one the model was trained for: "
+            "gel_layers[protective_top].youngs_modulus_pa changed since; its estimates may be off") in log
 
 
 def test_the_fusion_node_publishes_no_estimate_that_contradicts_its_model_and_keeps_running(ros_probe, tmp_path):
@@ -175,7 +188,7 @@ def test_the_fusion_node_publishes_no_estimate_that_contradicts_its_model_and_ke
     config = ModelConfig(image_size=128, conv_channels=(4, 4, 4), hidden_features=16, camera_features=8)
     model = build_model(config, sensor.camera_ids, sensor.grid.rows, sensor.grid.cols,
                         torch.tensor([0.001, 0.001, 0.01]), seed=0)
-    model_dir = save_model(model, tmp_path / "model", sensor.name)
+    model_dir = save_model(model, tmp_path / "model", sensor)
     export_all(model, model_dir)
     description = json.loads((model_dir / MODEL_JSON).read_text())
     assert description["components"] == ["fx", "fy", "fz"]

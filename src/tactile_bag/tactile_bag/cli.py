@@ -86,6 +86,7 @@ def cmd_play(args) -> int:
 
 def cmd_eval(args) -> int:
     # Imported here: the model stack (torch, onnxruntime) takes seconds to import and record/play do not need it.
+    from tactile_fusion.artifacts import sensor_changes_warning
     from tactile_fusion.inference import load_predictor
 
     sensor = load_sensor(args.sensor)
@@ -93,6 +94,9 @@ def cmd_eval(args) -> int:
     truth_topic = absolute_topic(args.truth_topic) if args.truth_topic else GROUND_TRUTH_TOPIC
     result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
                           truth_topic if args.truth_topic else None, contact_level_n=args.contact_level)
+    warning = sensor_changes_warning(predictor, sensor)  # after evaluate_bag's refusal of a model of other cameras
+    if warning:
+        print(f"tactile-bag eval: warning: {warning}", file=sys.stderr)
     summary = result.summary()
     if args.json:
         print(json.dumps(summary))

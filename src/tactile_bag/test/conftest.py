@@ -214,4 +214,4 @@ def model_dir(tmp_path_factory, sensor):
                          fusion_rank=4)
     model = build_model(config, sensor.camera_ids, sensor.grid.rows, sensor.grid.cols,
                         torch.tensor([0.001, 0.001, 0.01]), seed=0)
-    return save_model(model, tmp_path_factory.mktemp("model"), sensor.name)
+    return save_model(model, tmp_path_factory.mktemp("model"), sensor)

@@ -1,7 +1,8 @@
 """A trained model on disk: one directory (the shipped one is src/tactile_fusion/models/default).
 
-  model.json          model config, camera ids, bin grid, force scale, estimated components, Fz threshold, sensor
-                      name (what `load_model` needs)
+  model.json          model config, camera ids, bin grid, force scale, estimated components, Fz threshold (what
+                      `load_model` needs), and the sensor it was trained for: its name and physical description
+                      (tactile_description.made_for), to name what changed in the description since
   model.pt            the torch state dict, and the model.json fields it was trained with (weights_fields)
   model.onnx          float32 ONNX graph           (export.py)
   model_int8.onnx     int8-quantized ONNX graph    (fusion layer in float)
@@ -25,6 +26,7 @@ import torch
 from tactile_description import FORCE_COMPONENTS, SensorDescription
 from tactile_description.command_line import one_line
 from tactile_description.json_file import read_json
+from tactile_description.made_for import changed_fields, changes_text, physical_fields
 from tactile_description.sensor import MAX_BINS
 from tactile_description.value_checks import is_whole_number
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
@@ -68,15 +70,42 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def save_model(model: ForceFusionNet, out_dir: str | Path, sensor_name: str = "") -> Path:
-    """Write model.pt, then model.json, into `out_dir`, each whole or not at all (write_torch_file, write_json)."""
+#: The entry of model.json that holds the physical description of the sensor the model was trained for
+#: (tactile_description.made_for.physical_fields); models trained before 2026-11-27 lack it.
+SENSOR_KEY = "sensor"
+
+
+def save_model(model: ForceFusionNet, out_dir: str | Path, sensor: SensorDescription | None = None) -> Path:
+    """Write model.pt, then model.json, into `out_dir`, each whole or not at all (write_torch_file, write_json).
+    `sensor`: the description the model was trained for (None: a model of no sensor's, as in tests)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_torch_file(out_dir / STATE_DICT, {**model.state_dict(), WEIGHTS_FIELDS_KEY: weights_fields(model)},
                      "run the command again")
-    write_json(out_dir / MODEL_JSON, {"format_version": FORMAT_VERSION, "sensor_name": sensor_name,
-                                      **model_fields(model)})
+    made_for = {} if sensor is None else {SENSOR_KEY: physical_fields(sensor)}
+    write_json(out_dir / MODEL_JSON, {"format_version": FORMAT_VERSION,
+                                      "sensor_name": "" if sensor is None else sensor.name,
+                                      **model_fields(model), **made_for})
     return out_dir
+
+
+def sensor_changes(predictor, sensor: SensorDescription) -> list[str] | None:
+    """The fields of `sensor`'s physical description that differ from the one the model of `predictor` (from
+    load_predictor) was trained for, such as ["gel_layers[top].youngs_modulus_pa"]; None where its model.json does
+    not say. check_model_fits refuses a model of other cameras or bins; this is for what the model cannot show, a
+    gel, camera pose or lens edited since training, whose images it never saw. A warning, not a refusal: the estimates
+    may be off, but the user may know that the change does not matter to the images (a value only refined)."""
+    return None if predictor.made_for is None else changed_fields(predictor.made_for, physical_fields(sensor))
+
+
+def sensor_changes_warning(predictor, sensor: SensorDescription) -> str:
+    """What to tell the user about `sensor_changes` ("" where there are none or it is not known)."""
+    changes = sensor_changes(predictor, sensor)
+    if not changes:
+        return ""
+    return (f"the sensor description {sensor.source or sensor.name} is not the one the model was trained for: "
+            f"{changes_text(changes)} changed since; its estimates may be off: retrain it for this description "
+            "(tactile-fusion train --sensor FILE), or use the description it was trained with")
 
 
 def write_torch_file(path: Path, data: dict, retry: str) -> None:
@@ -174,6 +203,9 @@ def _description_problem(description: dict) -> str:
                 f"takes ({MAX_BINS})")
     if not (isinstance(scale, list) and len(scale) == 3):
         return f"force_scale_n must be a list of 3 numbers, got {scale!r}"
+    if not isinstance(description.get(SENSOR_KEY, {}), dict):
+        return f"{SENSOR_KEY} must be a mapping (the sensor description it was trained for), got " \
+               f"{description[SENSOR_KEY]!r}"
     try:
         ModelConfig.from_dict(description.get("model_config"))
     except (TypeError, KeyError, ValueError) as exc:

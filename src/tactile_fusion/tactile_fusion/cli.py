@@ -47,6 +47,8 @@ from tactile_fusion.artifacts import (
     model_components,
     model_threshold,
     read_model_json,
+    sensor_changes,
+    sensor_changes_warning,
     threshold_text,
 )
 from tactile_fusion.data import DatasetMismatchError, FrameDataError, load_dataset_frames
@@ -252,6 +254,9 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
     check_model_fits(predictor, sensor)
+    changed = sensor_changes_warning(predictor, sensor)
+    if changed:
+        print(f"tactile-fusion eval: warning: {changed}", file=sys.stderr)
     out = _output_dir(args.out) if args.out else None
     results = {}
     sets, skipped = _eval_sets(args, sensor, model_dir)
@@ -267,7 +272,8 @@ def cmd_eval(args) -> int:
                          bin_size_mm=grid_bin_size_mm(sensor.grid))
     first = next(iter(results.values()))
     report = {"rmse_bin_n": first["rmse_bin_n"], "rmse_total_n": first["rmse_total_n"],
-              "model": str(model_dir), "backend": args.backend, "precision": args.precision, "data_sets": results,
+              "model": str(model_dir), "backend": args.backend, "precision": args.precision,
+              "sensor_changes": sensor_changes(predictor, sensor), "data_sets": results,
               "hard_cases_left_out": skipped}
     if out:
         write_json(out / "metrics.json", report)

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from tactile_fusion.artifacts import (
+    SENSOR_KEY,
     ModelFileError,
     backend_file,
     default_model_dir,
@@ -52,6 +53,9 @@ class ForcePredictor:
     """Common part of the backends: metadata and input checking. Subclasses implement `_run`."""
 
     backend = ""
+    #: The physical description of the sensor the model was trained for (model.json's, set by load_predictor), None
+    #: where it is not known: artifacts.sensor_changes compares it with the sensor's.
+    made_for: dict | None = None
 
     def __init__(self, camera_ids: Sequence[str], rows: int, cols: int, image_size: int, precision: str,
                  components: Sequence[str], fz_threshold_n: float | None):
@@ -246,8 +250,11 @@ def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxrunt
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
     description = read_model_json(model_dir)
     if backend == "torch":
-        return TorchPredictor(load_model(model_dir), precision, threads)
-    path = backend_file(model_dir, backend, precision)
-    if not path.exists():
-        raise ModelFileError(f"{path} is missing: export it with `tactile-fusion export --model {model_dir}`")
-    return OnnxRuntimePredictor(path, description, precision, threads)
+        predictor = TorchPredictor(load_model(model_dir), precision, threads)
+    else:
+        path = backend_file(model_dir, backend, precision)
+        if not path.exists():
+            raise ModelFileError(f"{path} is missing: export it with `tactile-fusion export --model {model_dir}`")
+        predictor = OnnxRuntimePredictor(path, description, precision, threads)
+    predictor.made_for = description.get(SENSOR_KEY)
+    return predictor

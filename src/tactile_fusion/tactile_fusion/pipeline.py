@@ -182,7 +182,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
                                  progress, head_extra, fz_threshold=True)
     training_wall_s = time.perf_counter() - started
-    save_model(model, out_dir, sensor.name)
+    save_model(model, out_dir, sensor)
     export_all(model, out_dir)
     metrics = record_test_metrics(out_dir, splits["test"], data_source, sensor, threads)
     write_json(out_dir / TRAINING_JSON, {

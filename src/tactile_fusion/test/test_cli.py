@@ -87,6 +87,19 @@ def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):
     assert contact["frames_without_load"] + sum(b["frames"] for b in contact["bands"]) == 4
     assert (tmp_path / "metrics.json").is_file()
     assert list(tmp_path.glob("fz_map_*.png"))
+    assert report["sensor_changes"] == [] and "warning" not in result.stderr  # trained for this description
+
+
+def test_eval_warns_of_a_sensor_description_edited_since_training(tiny_model, tmp_path):
+    out, _ = tiny_model
+    softer = tmp_path / "softer.yaml"
+    softer.write_text((CONFIG / "sensor.yaml").read_text().replace("youngs_modulus_kpa: 275.4",
+                                                                     "youngs_modulus_kpa: 200.0"))
+    result = run("eval", "--model", str(out), "--sensor", str(softer), "--frames", "2", "--json")
+    assert json.loads(result.stdout)["sensor_changes"] == ["gel_layers[protective_top].youngs_modulus_pa"]
+    assert result.stderr.startswith(f"tactile-fusion eval: warning: the sensor description {softer} is not the one "
+                                    "the model was trained for: gel_layers[protective_top].youngs_modulus_pa changed "
+                                    "since; its estimates may be off"), result.stderr
 
 
 def test_eval_measures_a_model_on_the_test_split_of_its_own_training_scene(tmp_path):

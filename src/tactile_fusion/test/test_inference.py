@@ -1,5 +1,6 @@
 """ONNX export and the inference backends behind one interface: agreement, input checks, precisions."""
 
+import dataclasses
 import json
 import math
 import re
@@ -23,6 +24,8 @@ from tactile_fusion.artifacts import (
     model_fields,
     replace_written,
     save_model,
+    sensor_changes,
+    sensor_changes_warning,
     write_json,
     write_torch_file,
 )
@@ -49,7 +52,7 @@ def model_dir(tmp_path_factory, make_frames, request):
     fit(model, ImageSource(frames.subset(np.arange(32)), scale), ImageSource(frames.subset(np.arange(32, 40)), scale),
         TrainConfig(max_epochs=3, batch_size=4, learning_rate=1e-2))
     out = tmp_path_factory.mktemp("model")
-    save_model(model, out, "synthetic")
+    save_model(model, out)
     export_all(model, out)
     return out, frames
 
@@ -266,7 +269,7 @@ def test_a_model_of_fz_alone_exports_and_runs_in_every_backend_and_precision(mod
     out, frames = model_dir
     model = load_model(out)
     fz = fz_only_copy(model)
-    save_model(fz, tmp_path, "synthetic")
+    save_model(fz, tmp_path)
     export_all(fz, tmp_path)
     assert json.loads((tmp_path / MODEL_JSON).read_text())["components"] == ["fz"]
     assert load_model(tmp_path).components == ("fz",)
@@ -287,7 +290,7 @@ def test_a_model_with_an_fz_threshold_applies_it_in_every_backend_and_precision(
     plain = load_predictor(out, "torch").predict_batch(frames.images, frames.reference)
     model = load_model(out)
     model.fz_threshold_n = float(np.median(np.abs(plain[..., 2])))  # acts on about half of the bins
-    save_model(model, tmp_path, "synthetic")
+    save_model(model, tmp_path)
     export_all(model, tmp_path)  # refuses a quantized fusion layer
     assert json.loads((tmp_path / MODEL_JSON).read_text())["fz_threshold_n"] == model.fz_threshold_n
     assert load_model(tmp_path).fz_threshold_n == model.fz_threshold_n
@@ -309,7 +312,7 @@ def test_a_graph_of_another_shape_that_names_nothing_in_its_metadata_is_refused_
     out, _ = model_dir
     model = load_model(out)
     other = build_model(model.config, model.camera_ids, 4, 3, model.force_scale_n, seed=0)  # 4 x 3 bins, not 3 x 4
-    save_model(other, tmp_path, "synthetic")
+    save_model(other, tmp_path)
     export_all(other, tmp_path)
     shutil.copy(out / MODEL_JSON, tmp_path / MODEL_JSON)
     graph = tmp_path / ONNX_FILES["fp32"]
@@ -328,7 +331,7 @@ def test_a_graph_and_a_model_json_that_differ_in_what_the_graph_has_built_in_are
     out, _ = model_dir
     model = load_model(out)
     model.fz_threshold_n = 0.002
-    save_model(model, tmp_path, "synthetic")
+    save_model(model, tmp_path)
     export_all(model, tmp_path)
     description = json.loads((tmp_path / MODEL_JSON).read_text())
     for name in ONNX_FILES.values():  # every graph names the model.json fields it has built in
@@ -366,7 +369,7 @@ def test_a_graph_and_a_model_json_that_differ_in_what_the_graph_has_built_in_are
 def test_weights_and_a_model_json_that_differ_in_what_the_weights_were_trained_with_are_refused(model_dir, tmp_path):
     out, _ = model_dir
     model = load_model(out)
-    save_model(model, tmp_path, "synthetic")
+    save_model(model, tmp_path)
     description = json.loads((tmp_path / MODEL_JSON).read_text())
     named = torch.load(tmp_path / STATE_DICT, weights_only=True)[WEIGHTS_FIELDS_KEY]
     assert named == {key: description[key] for key in model_fields(model) if key != "fz_threshold_n"}
@@ -457,6 +460,36 @@ def test_a_model_must_fit_the_sensor_in_cameras_bins_and_image_size():
                            (net(sensor.camera_ids, size=64), "64 x 64 images")):
         with pytest.raises(ModelFileError, match=message):
             check_model_fits(TorchPredictor(wrong), sensor)
+
+
+def test_a_model_names_the_description_it_was_trained_for_and_what_changed_in_it_since(model_dir, tmp_path):
+    """model.json keeps the physical description of the sensor the model was trained for: a gel, camera or lens
+    edited since, which check_model_fits cannot see, is named in a warning; the model still runs."""
+    out, _ = model_dir
+    sensor = load_sensor()
+    model = load_model(out)
+    save_model(model, tmp_path, sensor)
+    export_all(model, tmp_path)
+    layers = list(sensor.gel_layers)
+    layers[1] = dataclasses.replace(layers[1], youngs_modulus_pa=2 * layers[1].youngs_modulus_pa)
+    stiffer = dataclasses.replace(sensor, gel_layers=tuple(layers), source="stiffer.yaml")
+    for backend in BACKENDS:
+        predictor = load_predictor(tmp_path, backend)
+        assert sensor_changes(predictor, sensor) == [] and sensor_changes_warning(predictor, sensor) == ""
+        assert sensor_changes(predictor, dataclasses.replace(sensor, name="renamed")) == []
+        assert sensor_changes(predictor, stiffer) == ["gel_layers[particle_layer].youngs_modulus_pa"]
+        assert sensor_changes_warning(predictor, stiffer) == (
+            "the sensor description stiffer.yaml is not the one the model was trained for: "
+            "gel_layers[particle_layer].youngs_modulus_pa changed since; its estimates may be off: retrain it for "
+            "this description (tactile-fusion train --sensor FILE), or use the description it was trained with")
+    # A model saved without its sensor (as those trained before 2026-11-27) cannot tell: no warning.
+    assert sensor_changes(load_predictor(out), stiffer) is None and sensor_changes_warning(load_predictor(out),
+                                                                                           stiffer) == ""
+    description = json.loads((tmp_path / MODEL_JSON).read_text())
+    write_json(tmp_path / MODEL_JSON, {**description, "sensor": "trueeb2020_4cam"})
+    with pytest.raises(ModelFileError, match=r"model.json: sensor must be a mapping \(the sensor description it was "
+                                             r"trained for\), got 'trueeb2020_4cam'; the file is damaged"):
+        load_predictor(tmp_path)
 
 
 def test_a_json_file_that_cannot_be_written_is_one_error_and_leaves_the_file_before_whole(tmp_path):

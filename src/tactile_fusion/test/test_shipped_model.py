@@ -22,6 +22,7 @@ from tactile_fusion.artifacts import (
     load_model,
     model_fields,
     read_model_json,
+    sensor_changes,
     weights_fields,
 )
 from tactile_fusion.bench import recorded_accuracy
@@ -57,6 +58,15 @@ def test_shipped_model_fits_the_reference_sensor(shipped):
     description = read_model_json(model_dir)
     assert tuple(description["camera_ids"]) == frames.camera_ids
     assert (description["rows"], description["cols"]) == frames.bin_forces_n.shape[1:3]
+
+
+def test_shipped_model_was_trained_for_the_shipped_sensor_description(shipped):
+    """An edit of config/sensor.yaml that changes the images (a gel, a camera, a lens) makes the shipped model stale:
+    retrain it (`make model`), which writes the description it was trained for into model.json."""
+    model_dir, _, _ = shipped
+    predictor = load_predictor(model_dir)
+    assert predictor.made_for is not None
+    assert sensor_changes(predictor, load_sensor(CONFIG / "sensor.yaml")) == []
 
 
 def test_shipped_graphs_and_weights_name_the_model_they_were_exported_from(shipped):
