@@ -8,6 +8,7 @@ import threading
 import time
 
 import pytest
+import yaml
 
 pytestmark = pytest.mark.system
 
@@ -90,3 +91,17 @@ def test_the_demo_refuses_a_duration_that_would_end_at_once_or_never(duration, t
                          text=True, timeout=60)
     assert run.returncode == 2, run.stderr
     assert f"argument --duration: must be a finite number of seconds > 0, got '{duration}'" in run.stderr
+
+
+def test_the_demo_refuses_a_scene_whose_contacts_overlap_before_it_starts_a_node(tmp_path):
+    """The simulated camera node's ground-truth model would count the overlap twice, and refuse the scene itself only
+    once the graph had started."""
+    scene = tmp_path / "overlap.yaml"
+    scene.write_text(yaml.safe_dump({"name": "overlap", "seed": 1, "timeline": [{"contacts": {"contacts": [
+        {"x_mm": 20, "y_mm": 20, "depth_mm": 1.0}, {"x_mm": 22, "y_mm": 20, "depth_mm": 1.0}]}}]}))
+    run = subprocess.run(["tactile-demo", "--scene", str(scene), "--log-dir", str(tmp_path / "logs")],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2, run.stderr
+    assert "contacts[0] and contacts[1] overlap: 2 mm apart" in run.stderr, run.stderr
+    assert "counting the overlap twice" in run.stderr
+    assert len(run.stderr.splitlines()) == 1 and not list((tmp_path / "logs").glob("*.log"))

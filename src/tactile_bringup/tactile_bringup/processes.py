@@ -19,6 +19,7 @@ from tactile_conversions.stop_signals import stopped_by_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC
 from tactile_description import SensorDescription, load_sensor
 from tactile_description.command_line import error_exit, stop_signals_ignored
+from tactile_sim.contact import ground_truth_model
 from tactile_sim.scene import load_scene
 
 #: Time a stuck node gets to write its stacks before it is killed.
@@ -33,11 +34,12 @@ class LogDirError(ValueError):
 
 def check_tool_inputs(sensor_config: str, scene: str, log_dir: Path) -> SensorDescription:
     """What tactile-demo and tactile-latency check before they start any node: the sensor description, the scene
-    against it, as the simulated camera node will load them (a node that refused them would only say so in its log,
-    once the graph had started), and the nodes' log directory, made here. The sensor description; raises
-    SensorConfigError, SceneError or LogDirError, each with a one-line message naming the file."""
+    against it and the simulated camera node's ground-truth model, as that node will load them (a node that refused
+    them would only say so in its log, once the graph had started), and the nodes' log directory, made here. The
+    sensor description; raises SensorConfigError, SceneError or LogDirError, each with a one-line message naming the
+    file."""
     sensor = load_sensor(sensor_config)
-    load_scene(scene, sensor)
+    load_scene(scene, sensor).check_overlaps(ground_truth_model(sensor))  # the node's Simulator's default model
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
         tempfile.TemporaryFile(dir=log_dir).close()  # a directory that takes no file (/proc, read-only, not ours)

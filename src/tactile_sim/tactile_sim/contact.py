@@ -146,6 +146,9 @@ class GroundTruthModel(Protocol):
     """What the simulator calls to label a frame."""
 
     name: str
+    #: Each contact computed alone and the bin forces added: contacts whose areas overlap are over-counted, and the
+    #: simulator refuses scenes that may have them (Scene.check_overlaps).
+    adds_contacts: bool
 
     def bin_forces(self, contacts: Sequence[Contact]) -> np.ndarray:
         """(rows, cols, 3) float64 bin forces in newtons, last axis (fx, fy, fz), fz > 0 in compression."""
@@ -313,6 +316,7 @@ class AnalyticContactModel:
     """
 
     name = "analytic"
+    adds_contacts = True
 
     def __init__(self, sensor: SensorDescription, rings: int = 24, sectors: int = 32):
         if not (is_whole_number(rings) and is_whole_number(sectors, 4) and sectors % 4 == 0):

@@ -117,6 +117,7 @@ class NumericalContactModel:
     """Frictionless normal contact of any rigid indenters on the layer, plus Cattaneo-Mindlin shear traction."""
 
     name = "numerical"
+    adds_contacts = False  # every indenter in one solve
 
     def __init__(self, sensor: SensorDescription, pixels_per_bin: int = 8, tolerance: float = 1e-10,
                  max_iterations: int = 2000):

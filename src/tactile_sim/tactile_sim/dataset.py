@@ -71,7 +71,7 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
         if not overwrite:
             raise DatasetError(f"output directory {directory} is not empty: it holds a data set; choose a new one or "
                                "replace it with --overwrite (overwrite=True in Python)")
-    scene.validate(sim.sensor)  # before the directory is made: a scene refused leaves none behind
+    sim.check_playable(scene)  # before the directory is made: a scene refused leaves none behind
     directory.mkdir(parents=True, exist_ok=True)
     if frames is not None:
         scene = scene.limited(frames)

@@ -13,6 +13,7 @@ the same file always gives the same contacts, and a shortened scene gives a pref
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -29,6 +30,7 @@ from tactile_sim.contact import (
     MAX_FRICTION,
     Contact,
     FlatPunch,
+    GroundTruthModel,
     Shape,
     Sphere,
     contact_radius_m,
@@ -370,8 +372,41 @@ def _check_contacts(p, where: str, grid: BinGrid) -> None:
         _check_touches(contact.x_m, contact.y_m, contact.shape, contact.depth_m, f"{where}.contacts[{i}]", grid)
 
 
+def _check_path(p, where: str, grid: BinGrid) -> None:
+    """Every waypoint within reach of the surface at the path's depth; so then is every place between two of them
+    (the surface grown by that reach is convex). The demo scene's path ran beside a smaller surface unchecked, most
+    of its frames pressing nothing."""
+    for i, (x_m, y_m) in enumerate(p["waypoints_m"]):
+        _check_touches(float(x_m), float(y_m), p["shape"], p["depth_m"], f"{where}.waypoints_mm[{i}]", grid)
+
+
 _SURFACE_CHECKS = {"press_grid": _check_press_grid, "random_presses": _check_random_presses, "press": _check_press,
-                   "contacts": _check_contacts}
+                   "contacts": _check_contacts, "path": _check_path}
+
+
+# --- contacts that overlap ------------------------------------------------------------------------------------------
+
+def _overlapping_contacts(p, where: str) -> str | None:
+    """Two contacts of the frame whose contact areas overlap (centres closer than their contact radii together)."""
+    for (i, a), (j, b) in itertools.combinations(enumerate(p["contacts"]), 2):
+        apart = math.hypot(a.x_m - b.x_m, a.y_m - b.y_m)
+        reach = contact_radius_m(a.shape, a.depth_m) + contact_radius_m(b.shape, b.depth_m)
+        if apart < reach:
+            return (f"{where}.contacts[{i}] and contacts[{j}] overlap: {apart / MM:.3g} mm apart, closer than their "
+                    f"contact radii together ({reach / MM:.3g} mm)")
+    return None
+
+
+def _overlapping_random_presses(p, where: str) -> str | None:
+    """Frames of several presses whose min_separation lets two contact areas overlap at the deepest press."""
+    reach = 2 * contact_radius_m(p["shape"], p["depth_m"][1])
+    if p["contacts_per_frame"][1] > 1 and p["min_separation_m"] < reach:
+        return (f"{where}.min_separation_mm ({p['min_separation_m'] / MM:g} mm) lets two contacts overlap: at the "
+                f"deepest press their contact radii add up to {reach / MM:.3g} mm")
+    return None
+
+
+_OVERLAP_CHECKS = {"contacts": _overlapping_contacts, "random_presses": _overlapping_random_presses}
 
 
 # --- the scene ------------------------------------------------------------------------------------------------------
@@ -429,6 +464,19 @@ class Scene:
         ctx = self.effect_context(sensor)
         for effect in self.effects:
             effect.camera_mask(ctx)
+
+    def check_overlaps(self, ground_truth: GroundTruthModel) -> None:
+        """SceneError where two contacts of a frame may overlap and `ground_truth` computes each contact alone and adds
+        their forces (GroundTruthModel.adds_contacts): it would count the shared part twice."""
+        if not ground_truth.adds_contacts:
+            return
+        for segment in self.segments:
+            check = _OVERLAP_CHECKS.get(segment.kind)
+            problem = check(segment.params, segment.where) if check else None
+            if problem:
+                raise SceneError(f"{problem}: the {ground_truth.name} ground-truth model computes each contact alone "
+                                 "and adds their forces, counting the overlap twice; move them apart, or label the "
+                                 "scene with the numerical model (tactile-sim generate --model numerical)")
 
     def effect_context(self, sensor: SensorDescription) -> EffectContext:
         out = sensor.cameras[0].output_size

@@ -88,11 +88,17 @@ class Simulator:
         return self.particles.positions_m + self.gel.displacements_m(bin_forces_n)
 
     def stream(self, scene: Scene, frames: int | None = None) -> Iterator[Frame]:
-        """The frames of `scene` (or of its first `frames` frames), one at a time."""
-        scene.validate(self.sensor)
+        """The frames of `scene` (or of its first `frames` frames), one at a time (SceneError: check_playable)."""
+        self.check_playable(scene)
         if frames is not None:
             scene = scene.limited(frames)
         return self._frames(scene, bind_effects(scene.effects, scene.effect_context(self.sensor)))
+
+    def check_playable(self, scene: Scene) -> None:
+        """SceneError for a scene the sensor cannot play (Scene.validate), or whose contacts may overlap where the
+        ground-truth model would over-count them (Scene.check_overlaps)."""
+        scene.validate(self.sensor)
+        scene.check_overlaps(self.ground_truth)
 
     def _frames(self, scene: Scene, effects: EffectChain) -> Iterator[Frame]:
         period_s = 1.0 / self.sensor.frame_rate_hz

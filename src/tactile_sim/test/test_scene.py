@@ -185,6 +185,9 @@ def _random(**body):
     (_scene(timeline=[{"contacts": {"contacts": [{"x_mm": 10, "y_mm": 10, "depth_mm": 1.0},
                                                  {"x_mm": 60, "y_mm": 60, "depth_mm": 1.0}]}}]),
      r"timeline\[0\].contacts.contacts\[1\]: a press at \(60, 60\) mm is 14.2 mm off"),
+    # a path's waypoints too: the demo scene's path ran beside a 24.5 mm strip, pressing nothing most of the time
+    (_scene(timeline=[{"path": {"frames": 10, "depth_mm": 1.0, "waypoints_mm": [[10, 10], [60, 10], [10, 10]]}}]),
+     r"timeline\[0\].path.waypoints_mm\[1\]: a press at \(60, 10\) mm is 11 mm off the 49 x 51 mm surface"),
 ])
 def test_presses_outside_the_models_or_off_the_surface_are_refused_before_any_frame(sensor, raw, message):
     scene = parse_scene(raw, "test.yaml")

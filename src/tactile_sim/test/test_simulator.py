@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tactile_description import load_sensor
-from tactile_sim import Simulator, load_scene
+from tactile_sim import Simulator, load_scene, write_dataset
 from tactile_sim.contact import Contact, Sphere
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import parse_scene, scenes_directory
@@ -30,6 +30,40 @@ def test_stream_yields_every_frame_with_the_documented_arrays(sim):
         assert f.camera_ok.dtype == bool and f.camera_ok.all()
         assert 2 <= len(f.contacts) <= 4
     assert frames[1].time_s == pytest.approx(1 / sim.sensor.frame_rate_hz)
+
+
+OVERLAPPING = {"name": "overlap", "seed": 1, "timeline": [{"contacts": {"contacts": [
+    {"x_mm": 20, "y_mm": 20, "depth_mm": 1.0}, {"x_mm": 23, "y_mm": 20, "depth_mm": 1.0}]}}]}
+
+
+def test_contacts_that_may_overlap_are_refused_where_the_ground_truth_would_count_them_twice(sim, tmp_path):
+    """The analytic model computes each contact alone and adds their forces: two 10 mm spheres 1 mm deep 3 mm apart
+    (contact radii 2.24 mm each) would carry about twice the force of their shared area. The numerical model solves
+    them together and takes the scene."""
+    scene = parse_scene(OVERLAPPING, "overlap.yaml")
+    scene.validate(sim.sensor)  # the sensor can play it: whether it may overlap depends on the model
+    with pytest.raises(SceneError, match=re.escape(
+            "overlap.yaml.timeline[0].contacts.contacts[0] and contacts[1] overlap: 3 mm apart, closer than their "
+            "contact radii together (4.47 mm): the analytic ground-truth model computes each contact alone and adds "
+            "their forces, counting the overlap twice; move them apart, or label the scene with the numerical model "
+            "(tactile-sim generate --model numerical)")):
+        sim.stream(scene)
+    with pytest.raises(SceneError, match="counting the overlap twice"):  # before any file is written
+        write_dataset(sim, scene, tmp_path / "data", progress=False)
+    assert not (tmp_path / "data").exists()
+    random = parse_scene({"name": "r", "seed": 1, "timeline": [{"random_presses": {
+        "frames": 2, "contacts_per_frame": [1, 2], "depth_mm": [0.5, 1.5], "min_separation_mm": 5}}]}, "r.yaml")
+    with pytest.raises(SceneError, match=re.escape(
+            "r.yaml.timeline[0].random_presses.min_separation_mm (5 mm) lets two contacts overlap: at the deepest "
+            "press their contact radii add up to 5.48 mm")):
+        sim.stream(random)
+    numerical = Simulator(sim.sensor, ground_truth="numerical")
+    apart = parse_scene({**OVERLAPPING, "timeline": [{"contacts": {"contacts": [
+        {"x_mm": 20, "y_mm": 20, "depth_mm": 1.0}, {"x_mm": 24.5, "y_mm": 20, "depth_mm": 1.0}]}}]})
+    together, alone = next(numerical.stream(scene)), sim.bin_forces([Contact(0.02, 0.02, 1e-3, Sphere(0.005))])
+    # Solved together, two overlapping presses carry less than twice one alone.
+    assert alone[..., 2].sum() < together.bin_forces_n[..., 2].sum() < 1.9 * alone[..., 2].sum()
+    assert next(sim.stream(apart)).bin_forces_n[..., 2].sum() == pytest.approx(2 * alone[..., 2].sum(), rel=1e-3)
 
 
 def test_no_contact_gives_the_reference_frames(sim):
