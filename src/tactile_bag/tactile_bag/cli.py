@@ -18,7 +18,7 @@ from pathlib import Path
 
 import rclpy
 
-from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, evaluate_bag
+from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, check_fits, evaluate_bag
 from tactile_bag.play import MIN_RATE, play
 from tactile_bag.record import record
 from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
@@ -86,18 +86,19 @@ def cmd_play(args) -> int:
 
 def cmd_eval(args) -> int:
     # Imported here: the model stack (torch, onnxruntime) takes seconds to import and record/play do not need it.
-    from tactile_fusion.artifacts import sensor_changes_warning
+    from tactile_fusion.artifacts import sensor_changes, sensor_changes_warning
     from tactile_fusion.inference import load_predictor
 
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(args.model, args.backend)
     truth_topic = absolute_topic(args.truth_topic) if args.truth_topic else GROUND_TRUTH_TOPIC
-    result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
-                          truth_topic if args.truth_topic else None, contact_level_n=args.contact_level)
-    warning = sensor_changes_warning(predictor, sensor)  # after evaluate_bag's refusal of a model of other cameras
+    check_fits(predictor, sensor)  # before the warning, which would name the cameras of a model of others
+    warning = sensor_changes_warning(predictor.made_for, sensor)
     if warning:
         print(f"tactile-bag eval: warning: {warning}", file=sys.stderr)
-    summary = result.summary()
+    result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
+                          truth_topic if args.truth_topic else None, contact_level_n=args.contact_level)
+    summary = {**result.summary(), "sensor_changes": sensor_changes(predictor.made_for, sensor)}
     if args.json:
         print(json.dumps(summary))
         return 0

@@ -257,14 +257,20 @@ def match_stamps(stamps_s: np.ndarray, truth_stamps_s: np.ndarray, tolerance_s: 
     return np.where(np.abs(sorted_truth[nearest] - stamps_s) <= tolerance_s, index, -1)
 
 
-def live_estimation(predictor: ForcePredictor, sensor: SensorDescription, reference_bundles: int) -> LiveEstimation:
-    """fusion_node's loop for the bag, or BagError when the model does not fit the sensor description."""
-    from tactile_fusion.artifacts import ModelFileError  # imports torch, which record and play do not need
+def check_fits(predictor: ForcePredictor, sensor: SensorDescription) -> None:
+    """BagError unless the model fits the sensor description (artifacts.check_model_fits)."""
+    from tactile_fusion.artifacts import ModelFileError, check_model_fits  # imports torch: record and play need none
 
     try:
-        return LiveEstimation(predictor, sensor, reference_bundles)
+        check_model_fits(predictor, sensor)
     except ModelFileError as exc:
         raise BagError(f"{exc} (--model, --sensor)") from exc
+
+
+def live_estimation(predictor: ForcePredictor, sensor: SensorDescription, reference_bundles: int) -> LiveEstimation:
+    """fusion_node's loop for the bag, or BagError when the model does not fit the sensor description."""
+    check_fits(predictor, sensor)
+    return LiveEstimation(predictor, sensor, reference_bundles)
 
 
 def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePredictor, source: str = "auto",

@@ -278,14 +278,16 @@ def test_cli_eval_warns_of_a_sensor_description_edited_since_the_model_was_train
                                                                                     capsys):
     """A description whose cameras and grid fit the model, but with a camera moved: evaluated, with a warning."""
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--json"]) == 0
-    assert capsys.readouterr().err == ""
+    captured = capsys.readouterr()
+    assert captured.err == "" and json.loads(captured.out)["sensor_changes"] == []
     moved = tmp_path / "moved.yaml"
     moved.write_text(Path(default_sensor_path()).read_text().replace("cam0, position_mm: [12.25,",
                                                                      "cam0, position_mm: [12.5,"))
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--json", "--sensor",
                  str(moved)]) == 0
     captured = capsys.readouterr()
-    assert json.loads(captured.out)["estimates"] > 0
+    summary = json.loads(captured.out)
+    assert summary["estimates"] > 0 and summary["sensor_changes"] == ["cameras[cam0].position_m"]
     assert captured.err == (f"tactile-bag eval: warning: the sensor description {moved} is not the one the model was "
                             "trained for: cameras[cam0].position_m changed since; its estimates may be off: retrain it "
                             "for this description (tactile-fusion train --sensor FILE), or use the description it was "

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from tactile_description import load_sensor
-from tactile_description.made_for import NAMED_CHANGES, changed_fields, changes_text, physical_fields
+from tactile_description.made_for import NAMED_CHANGES, changed_fields, changes_text, made_for_problem, physical_fields
 
 CONFIG = Path(__file__).resolve().parents[3] / "config"
 
@@ -66,3 +66,26 @@ def test_changes_text_names_the_first_few_and_counts_the_rest():
     many = [f"cameras[cam{i}].yaw_rad" for i in range(NAMED_CHANGES + 3)]
     text = changes_text(many)
     assert text.endswith(" and 3 more") and text.count("yaw_rad") == NAMED_CHANGES
+
+
+def test_cameras_are_matched_by_id_in_any_order_and_a_vector_is_one_field(reference):
+    fields = physical_fields(reference)
+    reordered = dataclasses.replace(reference, cameras=reference.cameras[::-1])
+    assert changed_fields(fields, physical_fields(reordered)) == []
+    moved = list(reordered.cameras)
+    moved[0] = dataclasses.replace(moved[0], position_m=(0.0, 0.0, -8.5e-3))  # cam3, listed first
+    assert changed_fields(fields, physical_fields(dataclasses.replace(reordered, cameras=tuple(moved)))) == [
+        "cameras[cam3].position_m"]
+
+
+def test_numbers_equal_to_a_billionth_are_the_same_value():
+    """12.75 mm converted to metres as 12.75 * 1e-3 or 12.75 / 1000 differs in the last bit: not a change."""
+    assert 12.75 * 1e-3 != 12.75 / 1000
+    assert changed_fields({"grid": {"width_m": 12.75 * 1e-3}}, {"grid": {"width_m": 12.75 / 1000}}) == []
+    assert changed_fields({"grid": {"width_m": 0.049}}, {"grid": {"width_m": 0.049 * (1 + 1e-6)}}) == ["grid.width_m"]
+
+
+def test_a_record_read_back_is_checked_before_it_is_compared(reference):
+    assert made_for_problem(physical_fields(reference)) == ""
+    assert made_for_problem({"grid": {}, "gel_layers": [], "particles": {}}) == "lacks ['cameras']"
+    assert made_for_problem([]).startswith("must be a mapping of ")

@@ -26,7 +26,7 @@ import torch
 from tactile_description import FORCE_COMPONENTS, SensorDescription
 from tactile_description.command_line import one_line
 from tactile_description.json_file import read_json
-from tactile_description.made_for import changed_fields, changes_text, physical_fields
+from tactile_description.made_for import changed_fields, changes_text, made_for_problem, physical_fields
 from tactile_description.sensor import MAX_BINS
 from tactile_description.value_checks import is_whole_number
 from tactile_fusion.model import ForceFusionNet, ModelConfig, checked_components, checked_threshold
@@ -89,22 +89,28 @@ def save_model(model: ForceFusionNet, out_dir: str | Path, sensor: SensorDescrip
     return out_dir
 
 
-def sensor_changes(predictor, sensor: SensorDescription) -> list[str] | None:
-    """The fields of `sensor`'s physical description that differ from the one the model of `predictor` (from
-    load_predictor) was trained for, such as ["gel_layers[top].youngs_modulus_pa"]; None where its model.json does
-    not say. check_model_fits refuses a model of other cameras or bins; this is for what the model cannot show, a
-    gel, camera pose or lens edited since training, whose images it never saw. A warning, not a refusal: the estimates
-    may be off, but the user may know that the change does not matter to the images (a value only refined)."""
-    return None if predictor.made_for is None else changed_fields(predictor.made_for, physical_fields(sensor))
+def sensor_changes(made_for: dict | None, sensor: SensorDescription) -> list[str] | None:
+    """The fields of `sensor`'s physical description that differ from `made_for`, the one a model was trained for
+    (model.json's SENSOR_KEY, a predictor's `made_for`), such as ["gel_layers[top].youngs_modulus_pa"]; None where
+    that is not known. check_model_fits refuses a model of other cameras or bins; this is for what the model cannot
+    show, a gel, camera pose or lens edited since training, whose images it never saw."""
+    return None if made_for is None else changed_fields(made_for, physical_fields(sensor))
 
 
-def sensor_changes_warning(predictor, sensor: SensorDescription) -> str:
-    """What to tell the user about `sensor_changes` ("" where there are none or it is not known)."""
-    changes = sensor_changes(predictor, sensor)
+def sensor_changes_text(changes: list[str], sensor: SensorDescription) -> str:
+    """`sensor_changes` (not empty) in words."""
+    return (f"the sensor description {sensor.source or sensor.name} is not the one the model was trained for: "
+            f"{changes_text(changes)} changed since")
+
+
+def sensor_changes_warning(made_for: dict | None, sensor: SensorDescription) -> str:
+    """What to tell a user who runs a model with `sensor` ("" where nothing changed or it is not known). A warning, not
+    a refusal: the estimates may be off, but the user may know that the change does not matter to the images (a value
+    only refined)."""
+    changes = sensor_changes(made_for, sensor)
     if not changes:
         return ""
-    return (f"the sensor description {sensor.source or sensor.name} is not the one the model was trained for: "
-            f"{changes_text(changes)} changed since; its estimates may be off: retrain it for this description "
+    return (f"{sensor_changes_text(changes, sensor)}; its estimates may be off: retrain it for this description "
             "(tactile-fusion train --sensor FILE), or use the description it was trained with")
 
 
@@ -203,9 +209,10 @@ def _description_problem(description: dict) -> str:
                 f"takes ({MAX_BINS})")
     if not (isinstance(scale, list) and len(scale) == 3):
         return f"force_scale_n must be a list of 3 numbers, got {scale!r}"
-    if not isinstance(description.get(SENSOR_KEY, {}), dict):
-        return f"{SENSOR_KEY} must be a mapping (the sensor description it was trained for), got " \
-               f"{description[SENSOR_KEY]!r}"
+    if SENSOR_KEY in description:
+        problem = made_for_problem(description[SENSOR_KEY])
+        if problem:
+            return f"{SENSOR_KEY} (the sensor description it was trained for): {problem}"
     try:
         ModelConfig.from_dict(description.get("model_config"))
     except (TypeError, KeyError, ValueError) as exc:

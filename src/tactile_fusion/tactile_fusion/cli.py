@@ -41,6 +41,7 @@ from tactile_description.command_line import (
 from tactile_fusion.artifacts import (
     METRICS_JSON,
     MODEL_JSON,
+    SENSOR_KEY,
     ModelFileError,
     check_model_fits,
     default_model_dir,
@@ -48,6 +49,7 @@ from tactile_fusion.artifacts import (
     model_threshold,
     read_model_json,
     sensor_changes,
+    sensor_changes_text,
     sensor_changes_warning,
     threshold_text,
 )
@@ -254,7 +256,7 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
     check_model_fits(predictor, sensor)
-    changed = sensor_changes_warning(predictor, sensor)
+    changed = sensor_changes_warning(predictor.made_for, sensor)
     if changed:
         print(f"tactile-fusion eval: warning: {changed}", file=sys.stderr)
     out = _output_dir(args.out) if args.out else None
@@ -273,7 +275,7 @@ def cmd_eval(args) -> int:
     first = next(iter(results.values()))
     report = {"rmse_bin_n": first["rmse_bin_n"], "rmse_total_n": first["rmse_total_n"],
               "model": str(model_dir), "backend": args.backend, "precision": args.precision,
-              "sensor_changes": sensor_changes(predictor, sensor), "data_sets": results,
+              "sensor_changes": sensor_changes(predictor.made_for, sensor), "data_sets": results,
               "hard_cases_left_out": skipped}
     if out:
         write_json(out / "metrics.json", report)
@@ -329,6 +331,11 @@ def cmd_export(args) -> int:
     model_dir = Path(args.model) if args.model else default_model_dir()
     sensor = load_sensor(args.sensor)
     checked_model(model_dir, sensor)  # a model of another sensor is refused before any frame is simulated
+    changes = sensor_changes(read_model_json(model_dir).get(SENSOR_KEY), sensor)
+    if changes and (args.measure or args.fit_threshold):  # they would rewrite the model's records with them
+        raise ModelFileError(f"{sensor_changes_text(changes, sensor)}: --measure and --fit-threshold simulate its "
+                             "training scene again, which with this description is not the data it was trained on; "
+                             "give the description it was trained with (--sensor FILE)")
     # Training data that cannot be read is refused before anything in the directory is rewritten.
     test_split = held_out_split(model_dir, sensor, "test") if args.measure else None
     if args.fit_threshold:

@@ -107,7 +107,7 @@ class FusionNode(Node):
         log_sensor_description(self, self.sensor)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
                                f"the reference from the next {reference_bundles} bundles: do not touch")
-        changed = sensor_changes_warning(self.predictor, self.sensor)
+        changed = sensor_changes_warning(self.predictor.made_for, self.sensor)
         if changed:
             self.get_logger().warning(changed)
         left_out = left_out_components(self.predictor.components)

@@ -656,6 +656,29 @@ def test_export_refuses_a_model_of_another_sensor_before_it_simulates_frames(tin
                                                      CONFIG / "skin_3x3.yaml")
 
 
+def test_export_measure_refuses_a_description_other_than_the_one_the_model_was_trained_for(tiny_model, tmp_path,
+                                                                                           capsys, monkeypatch):
+    """--measure and --fit-threshold simulate the training scene again: with a moved camera, its frames would not be
+    those the model was trained on, and the model's own records would be rewritten with them."""
+    from tactile_fusion import pipeline
+
+    def simulated(*args, **kwargs):
+        raise AssertionError("frames were simulated with a description the model was not trained for")
+
+    monkeypatch.setattr(pipeline, "simulate_frames", simulated)
+    out, _ = tiny_model
+    moved = tmp_path / "moved.yaml"
+    moved.write_text((CONFIG / "sensor.yaml").read_text().replace("cam3, position_mm: [36.75,",
+                                                                  "cam3, position_mm: [36.0,"))
+    before = {f.name: file_sha256(f) for f in out.iterdir()}
+    for option in ("--measure", "--fit-threshold"):
+        assert refusal(capsys, "export", "--model", out, option, "--sensor", moved).endswith(
+            f"the sensor description {moved} is not the one the model was trained for: cameras[cam3].position_m "
+            "changed since: --measure and --fit-threshold simulate its training scene again, which with this "
+            "description is not the data it was trained on; give the description it was trained with (--sensor FILE)")
+    assert {f.name: file_sha256(f) for f in out.iterdir()} == before
+
+
 def test_resuming_a_finished_model_is_refused_and_leaves_it_as_it_is(tiny_model, tmp_path, capsys):
     out, _ = tiny_model
     finished = tmp_path / "model"

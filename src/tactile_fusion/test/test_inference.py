@@ -473,22 +473,37 @@ def test_a_model_names_the_description_it_was_trained_for_and_what_changed_in_it
     layers = list(sensor.gel_layers)
     layers[1] = dataclasses.replace(layers[1], youngs_modulus_pa=2 * layers[1].youngs_modulus_pa)
     stiffer = dataclasses.replace(sensor, gel_layers=tuple(layers), source="stiffer.yaml")
+    reordered = dataclasses.replace(sensor, cameras=sensor.cameras[::-1])  # the model matches cameras by id
     for backend in BACKENDS:
-        predictor = load_predictor(tmp_path, backend)
-        assert sensor_changes(predictor, sensor) == [] and sensor_changes_warning(predictor, sensor) == ""
-        assert sensor_changes(predictor, dataclasses.replace(sensor, name="renamed")) == []
-        assert sensor_changes(predictor, stiffer) == ["gel_layers[particle_layer].youngs_modulus_pa"]
-        assert sensor_changes_warning(predictor, stiffer) == (
+        made_for = load_predictor(tmp_path, backend).made_for
+        for same in (sensor, dataclasses.replace(sensor, name="renamed"), reordered):
+            assert sensor_changes(made_for, same) == [] and sensor_changes_warning(made_for, same) == ""
+        assert sensor_changes(made_for, stiffer) == ["gel_layers[particle_layer].youngs_modulus_pa"]
+        assert sensor_changes_warning(made_for, stiffer) == (
             "the sensor description stiffer.yaml is not the one the model was trained for: "
             "gel_layers[particle_layer].youngs_modulus_pa changed since; its estimates may be off: retrain it for "
             "this description (tactile-fusion train --sensor FILE), or use the description it was trained with")
     # A model saved without its sensor (as those trained before 2026-11-27) cannot tell: no warning.
-    assert sensor_changes(load_predictor(out), stiffer) is None and sensor_changes_warning(load_predictor(out),
-                                                                                           stiffer) == ""
-    description = json.loads((tmp_path / MODEL_JSON).read_text())
-    write_json(tmp_path / MODEL_JSON, {**description, "sensor": "trueeb2020_4cam"})
-    with pytest.raises(ModelFileError, match=r"model.json: sensor must be a mapping \(the sensor description it was "
-                                             r"trained for\), got 'trueeb2020_4cam'; the file is damaged"):
+    unknown = load_predictor(out).made_for
+    assert unknown is None and sensor_changes(unknown, stiffer) is None
+    assert sensor_changes_warning(unknown, stiffer) == ""
+
+
+@pytest.mark.parametrize("entry, problem", [
+    ("trueeb2020_4cam", "must be a mapping of ['grid', 'gel_layers', 'particles', 'cameras'], got 'trueeb2020_4cam'"),
+    ({}, "lacks ['grid', 'gel_layers', 'particles', 'cameras']"),
+    ({"grid": "26x25", "gel_layers": [], "particles": {}, "cameras": []}, "grid and particles must be mappings"),
+    ({"grid": {}, "gel_layers": [], "particles": {}, "cameras": 5}, "cameras must be a list of mappings, got 5"),
+    ({"grid": {}, "gel_layers": [], "particles": {}, "cameras": [{"camera_id": 1}]},
+     "every camera must have its camera_id"),
+])
+def test_a_damaged_record_of_the_description_a_model_was_trained_for_is_refused(model_dir, tmp_path, entry, problem):
+    """Not read as "nothing changed" (an empty mapping) nor as a change to warn of: the file is damaged."""
+    out, _ = model_dir
+    shutil.copytree(out, tmp_path, dirs_exist_ok=True)
+    write_json(tmp_path / MODEL_JSON, {**json.loads((out / MODEL_JSON).read_text()), "sensor": entry})
+    with pytest.raises(ModelFileError, match=re.escape(f"model.json: sensor (the sensor description it was trained "
+                                                       f"for): {problem}; the file is damaged")):
         load_predictor(tmp_path)
 
 
