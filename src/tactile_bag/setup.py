@@ -17,6 +17,6 @@ setup(
     description="rosbag2 (MCAP) recording, replay and offline evaluation for the tactile stack.",
     license="Apache-2.0",
     entry_points={"console_scripts": [
-        "tactile-bag = tactile_bag.cli:main",
+        "tactile-bag = tactile_description.commands:tactile_bag",
     ]},
 )

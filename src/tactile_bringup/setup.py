@@ -22,6 +22,6 @@ setup(
     maintainer_email="maintainers@tactile-stack.org",
     description="Launch files and configuration of the tactile sensor stack.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["tactile-demo = tactile_bringup.demo:main",
-                                    "tactile-latency = tactile_bringup.latency:main"]},
+    entry_points={"console_scripts": ["tactile-demo = tactile_description.commands:tactile_demo",
+                                    "tactile-latency = tactile_description.commands:tactile_latency"]},
 )

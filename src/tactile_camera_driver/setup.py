@@ -17,7 +17,7 @@ setup(
     description="Camera drivers of the tactile sensor: real cameras and video files through OpenCV, and the simulator.",
     license="Apache-2.0",
     entry_points={"console_scripts": [
-        "camera_node = tactile_camera_driver.camera_node:main",
-        "sim_camera_node = tactile_camera_driver.sim_camera_node:main",
+        "camera_node = tactile_description.commands:camera_node",
+        "sim_camera_node = tactile_description.commands:sim_camera_node",
     ]},
 )

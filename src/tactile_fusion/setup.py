@@ -20,8 +20,8 @@ setup(
     description="Force-distribution learning and inference for the multi-camera tactile sensor.",
     license="Apache-2.0",
     entry_points={"console_scripts": [
-        "tactile-fusion = tactile_fusion.cli:main",
-        "bundle_node = tactile_fusion.bundle_node:main",
-        "fusion_node = tactile_fusion.fusion_node:main",
+        "tactile-fusion = tactile_description.commands:tactile_fusion",
+        "bundle_node = tactile_description.commands:bundle_node",
+        "fusion_node = tactile_description.commands:fusion_node",
     ]},
 )

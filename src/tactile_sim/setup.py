@@ -16,5 +16,5 @@ setup(
     maintainer_email="maintainers@tactile-stack.org",
     description="Simulator of the multi-camera tactile sensor (pure Python).",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["tactile-sim = tactile_sim.cli:main"]},
+    entry_points={"console_scripts": ["tactile-sim = tactile_description.commands:tactile_sim"]},
 )

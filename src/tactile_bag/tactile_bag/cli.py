@@ -11,6 +11,7 @@ the sensor) ends with one line on stderr and exit status 2. docs/bags.md has the
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -26,8 +27,10 @@ from tactile_conversions.stop_signals import init_ros, stopped_by_signal
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
 from tactile_description.command_line import (
+    StopSignal,
     error_exit,
     number_argument,
+    stop_signals_raised,
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
@@ -201,10 +204,17 @@ def build_parser() -> argparse.ArgumentParser:
 @stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # record and play stop on rclpy's handlers (stop_signals); eval runs no ROS, and a Ctrl-C there (loading the model,
+    # estimating) gave a KeyboardInterrupt traceback, a SIGTERM an end without a word.
+    stop_signals = stop_signals_raised() if args.run is cmd_eval else contextlib.nullcontext()
     try:
-        return args.run(args)
+        with stop_signals:
+            return args.run(args)
     except (ValueError, FloatingPointError) as exc:  # BagError, MessageTypeError, SensorConfigError, ModelFileError,
         return error_exit(f"tactile-bag {args.command}", exc)  # bad arguments; a model that outputs NaN or Inf
+    except StopSignal as stop:
+        print(f"tactile-bag {args.command}: stopped by {stop.named}", file=sys.stderr)
+        return stop.exit_status
 
 
 if __name__ == "__main__":

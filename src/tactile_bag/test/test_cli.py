@@ -221,3 +221,20 @@ def test_play_stopped_by_a_signal_says_what_it_played(sim_bag, stop, loop):
     assert returncode == 0 and "Traceback" not in err, err
     played = int(out.split("played ")[1].split()[0])
     assert played > 0 if loop else played == 0, out
+
+
+@pytest.mark.parametrize("stop, named", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")])
+def test_eval_stopped_by_a_signal_says_so_in_one_line(sim_bag, model_dir, capsys, monkeypatch, stop, named):
+    """Before: a KeyboardInterrupt traceback for a Ctrl-C while eval estimated, and no word for a SIGTERM. The signal
+    is sent to this process while the bag is evaluated."""
+    from tactile_bag import cli
+
+    def evaluated_until_stopped(*args, **kwargs):
+        os.kill(os.getpid(), stop)
+        time.sleep(30)
+        raise AssertionError(f"{named} did not stop the evaluation")
+
+    monkeypatch.setattr(cli, "evaluate_bag", evaluated_until_stopped)
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch"]) == 128 + stop
+    assert capsys.readouterr().err == f"tactile-bag eval: stopped by {named}\n"
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # Python's handler is back
