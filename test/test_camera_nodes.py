@@ -159,6 +159,19 @@ def test_bad_parameter_values_are_refused_naming_the_parameter(ros_args_node, no
     assert message in str(refused.value)
 
 
+def test_the_simulated_cameras_refuse_a_scene_whose_contacts_their_ground_truth_would_count_twice(ros_args_node,
+                                                                                                  tmp_path):
+    """Refused as the scene, in one line (run_node): the refusal came from `Simulator.stream`, outside the scene's
+    refusal, and ended the node in a traceback with status 1 (found in review)."""
+    scene = tmp_path / "overlap.yaml"
+    scene.write_text("name: overlap\nseed: 1\ntimeline:\n  - contacts: {contacts: [{x_mm: 20, y_mm: 20, "
+                     "depth_mm: 1.0}, {x_mm: 22, y_mm: 20, depth_mm: 1.0}]}\n")
+    with pytest.raises(ParameterError) as refused:
+        ros_args_node(SimCameraNode, {"scene": str(scene)})
+    assert str(refused.value).startswith(f"tactile_sim_cameras: parameter scene: {scene}.timeline[0].contacts."
+                                         "contacts[0] and contacts[1] overlap: 2 mm apart")
+
+
 @pytest.mark.parametrize("node_class", [SimCameraNode, CameraNode, BundleNode, FusionNode])
 def test_each_node_says_which_sensor_description_it_uses(ros_args_node, capfd, node_class):
     """A misspelt `-p sensor_configs:=...` left a node on the default sensor without a word (found in review): each

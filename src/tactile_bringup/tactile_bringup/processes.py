@@ -150,8 +150,9 @@ def stop_nodes(processes: list[subprocess.Popen], timeout_s: float = 10.0) -> li
     sends the first signal: a Ctrl-C in the terminal reaches every node of the foreground process group at once.
 
     SIGINT is repeated every `SIGINT_REPEAT_S` while the node runs: a node started with SIGINT ignored (what a
-    background job of a non-interactive shell inherits) loses a SIGINT that arrives while it imports, before
-    `rclpy.init()` installs rclpy's handler, and would otherwise spin until killed. A node still running
+    background job of a non-interactive shell inherits) loses a SIGINT that arrives before its imports begin
+    (Python's start and its console script's lookup; tactile_description.commands handles the imports themselves),
+    and would otherwise spin until killed. A node still running
     `timeout_s` after its first SIGINT (the timeout is per node) gets SIGUSR1, which makes it print its threads'
     stacks into its log (tactile_conversions.node_main), so that the log says where it was stuck, and is then
     killed.

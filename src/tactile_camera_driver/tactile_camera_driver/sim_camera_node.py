@@ -68,7 +68,7 @@ class SimCameraNode(Node):
             self.simulator = Simulator(self.sensor)  # refuses what only the simulator needs (where the particles are)
         with refused_as(self, "parameter scene", SceneError):
             self.scene = load_scene(self.scene_name, self.sensor)
-        self.frames = self.simulator.stream(self.scene)
+            self.frames = self.simulator.stream(self.scene)  # refuses contacts the ground truth would count twice
         self.rng = np.random.default_rng(0)
         self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)
                            for c in self.sensor.camera_ids}

@@ -68,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--out", required=True, help="output directory")
     render.add_argument("--frames", type=frames, help="only the first N frames of the scene")
     render.add_argument("--count", type=previews, default=8, help="previews, spread evenly (default 8)")
+    render.add_argument("--model", choices=MODELS, default="analytic", help="ground-truth model")
 
     bench = commands.add_parser("bench", parents=[common], help="speed of the simulator")
     bench.add_argument("--scene", default="paper_grid", help="scene whose presses are timed (default paper_grid)")
@@ -107,7 +108,8 @@ def _render(args, sensor) -> None:
     from tactile_sim.simulator import Simulator
 
     scene = load_scene(args.scene, sensor)
-    paths = write_previews(Simulator(sensor), scene, args.out, count=args.count, frames=args.frames)
+    paths = write_previews(Simulator(sensor, ground_truth=args.model), scene, args.out, count=args.count,
+                           frames=args.frames)
     print("\n".join(str(p) for p in paths))
 
 

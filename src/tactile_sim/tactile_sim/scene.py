@@ -387,8 +387,10 @@ _SURFACE_CHECKS = {"press_grid": _check_press_grid, "random_presses": _check_ran
 # --- contacts that overlap ------------------------------------------------------------------------------------------
 
 def _overlapping_contacts(p, where: str) -> str | None:
-    """Two contacts of the frame whose contact areas overlap (centres closer than their contact radii together)."""
-    for (i, a), (j, b) in itertools.combinations(enumerate(p["contacts"]), 2):
+    """Two contacts of the frame whose contact areas overlap (centres closer than their contact radii together). A
+    contact at depth 0 presses nothing, a flat punch's radius notwithstanding."""
+    pressing = [(i, c) for i, c in enumerate(p["contacts"]) if c.depth_m > 0]
+    for (i, a), (j, b) in itertools.combinations(pressing, 2):
         apart = math.hypot(a.x_m - b.x_m, a.y_m - b.y_m)
         reach = contact_radius_m(a.shape, a.depth_m) + contact_radius_m(b.shape, b.depth_m)
         if apart < reach:
@@ -476,7 +478,7 @@ class Scene:
             if problem:
                 raise SceneError(f"{problem}: the {ground_truth.name} ground-truth model computes each contact alone "
                                  "and adds their forces, counting the overlap twice; move them apart, or label the "
-                                 "scene with the numerical model (tactile-sim generate --model numerical)")
+                                 "scene with the numerical model (tactile-sim generate or render --model numerical)")
 
     def effect_context(self, sensor: SensorDescription) -> EffectContext:
         out = sensor.cameras[0].output_size

@@ -108,6 +108,17 @@ def test_render_writes_previews(tmp_path):
     assert (tmp_path / "rest.png").stat().st_size > 10_000
 
 
+def test_render_previews_overlapping_contacts_with_the_numerical_model_only(tmp_path):
+    """The analytic model would count the overlap twice and refuses the scene; the numerical one solves it."""
+    scene = tmp_path / "overlap.yaml"
+    scene.write_text("name: overlap\nseed: 1\ntimeline:\n  - contacts: {contacts: [{x_mm: 20, y_mm: 20, "
+                     "depth_mm: 1.0}, {x_mm: 22, y_mm: 20, depth_mm: 1.0}]}\n")
+    refused = _run("render", "--scene", str(scene), "--out", str(tmp_path / "analytic"), check=False)
+    assert refused.returncode == 2 and "counting the overlap twice" in refused.stderr, refused.stderr
+    assert not (tmp_path / "analytic").exists()
+    written = _run("render", "--scene", str(scene), "--out", str(tmp_path / "numerical"), "--model", "numerical")
+    assert len(written.stdout.split()) == 2  # rest.png and the one frame
+
 def test_bench_prints_one_json_object_with_the_promised_figures():
     result = _run("bench", "--json", "--frames", "20", "--runs", "1", "--effect-frames", "10")
     report = json.loads(result.stdout)

@@ -46,7 +46,7 @@ def test_contacts_that_may_overlap_are_refused_where_the_ground_truth_would_coun
             "overlap.yaml.timeline[0].contacts.contacts[0] and contacts[1] overlap: 3 mm apart, closer than their "
             "contact radii together (4.47 mm): the analytic ground-truth model computes each contact alone and adds "
             "their forces, counting the overlap twice; move them apart, or label the scene with the numerical model "
-            "(tactile-sim generate --model numerical)")):
+            "(tactile-sim generate or render --model numerical)")):
         sim.stream(scene)
     with pytest.raises(SceneError, match="counting the overlap twice"):  # before any file is written
         write_dataset(sim, scene, tmp_path / "data", progress=False)
@@ -57,6 +57,11 @@ def test_contacts_that_may_overlap_are_refused_where_the_ground_truth_would_coun
             "r.yaml.timeline[0].random_presses.min_separation_mm (5 mm) lets two contacts overlap: at the deepest "
             "press their contact radii add up to 5.48 mm")):
         sim.stream(random)
+    # A flat punch at depth 0 presses nothing, although a punch's contact radius is its own at any depth.
+    untouched = parse_scene({**OVERLAPPING, "timeline": [{"contacts": {"contacts": [
+        {"x_mm": 20, "y_mm": 20, "depth_mm": 1.0},
+        {"x_mm": 23, "y_mm": 20, "depth_mm": 0.0, "indenter": {"shape": "flat_punch", "diameter_mm": 6}}]}}]})
+    assert next(sim.stream(untouched)).bin_forces_n[..., 2].sum() > 0.1
     numerical = Simulator(sim.sensor, ground_truth="numerical")
     apart = parse_scene({**OVERLAPPING, "timeline": [{"contacts": {"contacts": [
         {"x_mm": 20, "y_mm": 20, "depth_mm": 1.0}, {"x_mm": 24.5, "y_mm": 20, "depth_mm": 1.0}]}}]})
