@@ -9,6 +9,10 @@ A scene is a list of timeline segments, each a one-key mapping that expands into
   path            one press sliding along waypoints (the live demo)
 Frames are generated lazily and reproducibly: segment i draws from the random stream seeded (seed, 0, i), so
 the same file always gives the same contacts, and a shortened scene gives a prefix of the full one.
+
+A place on the surface is given in millimetres from its corner (`x_mm`, `waypoints_mm`) or in fractions of its width
+and length (`x_fraction`, `waypoints_fraction`: a Place), which fit any sensor's surface; the sensor's grid turns
+them into metres when frames are made or checked.
 """
 
 from __future__ import annotations
@@ -92,6 +96,19 @@ class Extremes:
 
 
 @dataclass(frozen=True)
+class Place:
+    """A point of the surface as a scene gives it: metres from the surface's corner, or fractions of its width (x) and
+    length (y)."""
+
+    x: float
+    y: float
+    fraction: bool
+
+    def metres(self, grid: BinGrid) -> tuple[float, float]:
+        return (self.x * grid.width_m, self.y * grid.length_m) if self.fraction else (self.x, self.y)
+
+
+@dataclass(frozen=True)
 class Segment:
     """One timeline entry: `kind`, its parameters (SI), its frame count and its presses' extremes."""
 
@@ -105,16 +122,30 @@ class Segment:
         return _GENERATORS[self.kind](self.params, rng, grid, self.n_frames)
 
 
-def _contact(node, where: str, default_shape: Shape) -> Contact:
+def _contact(node, where: str, default_shape: Shape) -> tuple[Place, Contact]:
+    """A contact of a `contacts` segment: its place, and the contact at the surface's corner (`_placed`)."""
     n = _fields(node, where)
     shape = _indenter(n.raw("indenter"), f"{where}.indenter") if n.has("indenter") else default_shape
-    x = n.number("x_mm") * MM
-    y = n.number("y_mm") * MM
+    place = _place(n)
     depth = n.number("depth_mm", low=0.0) * MM
     shear = tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0]))
     friction = n.number("friction", 1.0, low=0.0, high=MAX_FRICTION)
     n.finish()
-    return Contact(x, y, depth, shape, shear, friction)
+    return place, Contact(0.0, 0.0, depth, shape, shear, friction)
+
+
+def _placed(contacts, grid: BinGrid) -> tuple[Contact, ...]:
+    """The contacts of a `contacts` segment ((place, contact) pairs) at their places on `grid`'s surface."""
+    return tuple(replace(contact, x_m=x, y_m=y) for place, contact in contacts for x, y in [place.metres(grid)])
+
+
+def _place(n: YamlFields) -> Place:
+    """x_mm and y_mm, or x_fraction and y_fraction of the surface's width and length."""
+    if n.has("x_fraction") or n.has("y_fraction"):
+        if n.has("x_mm") or n.has("y_mm"):
+            raise SceneError(f"{n.where}: give x_mm and y_mm, or x_fraction and y_fraction, not both")
+        return Place(n.number("x_fraction"), n.number("y_fraction"), fraction=True)
+    return Place(n.number("x_mm") * MM, n.number("y_mm") * MM, fraction=False)
 
 
 def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:
@@ -128,13 +159,18 @@ def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:
     return per_frame[0], per_frame[1]
 
 
-def _waypoints_m(n: YamlFields) -> np.ndarray:
-    waypoints = n.raw("waypoints_mm", required=True)
+def _waypoints(n: YamlFields) -> tuple[Place, ...]:
+    """waypoints_mm, or waypoints_fraction of the surface's width and length."""
+    fraction = n.has("waypoints_fraction")
+    if fraction and n.has("waypoints_mm"):
+        raise SceneError(f"{n.where}: give waypoints_mm or waypoints_fraction, not both")
+    key, unit, scale = ("waypoints_fraction", "fractions", 1.0) if fraction else ("waypoints_mm", "mm", MM)
+    waypoints = n.raw(key, required=True)
     if not (isinstance(waypoints, list) and len(waypoints) >= 2 and all(
             isinstance(w, list) and len(w) == 2 and all(is_number(v) for v in w) for w in waypoints)):
-        raise SceneError(f"{n.where}.waypoints_mm must list at least two [x, y] points (finite numbers, mm), "
+        raise SceneError(f"{n.where}.{key} must list at least two [x, y] points (finite numbers, {unit}), "
                          f"got {waypoints!r}")
-    return np.asarray(waypoints, dtype=np.float64) * MM
+    return tuple(Place(x * scale, y * scale, fraction) for x, y in waypoints)
 
 
 def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
@@ -153,8 +189,7 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
         depths = n.raw("depths_mm", required=True)
         if not (isinstance(depths, list) and depths and all(is_number(d) and d >= 0 for d in depths)):
             raise SceneError(f"{where}.depths_mm must be a non-empty list of depths >= 0 (mm), got {depths!r}")
-        params.update(x_m=n.number("x_mm") * MM, y_m=n.number("y_mm") * MM,
-                      depths_m=tuple(d * MM for d in depths),
+        params.update(place=_place(n), depths_m=tuple(d * MM for d in depths),
                       shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])),
                       friction=n.number("friction", 1.0, low=0.0, high=MAX_FRICTION))
         count, deepest, shear = len(depths), max(depths) * MM, math.hypot(*params["shear_m"])
@@ -167,7 +202,7 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
         count = n.count("repeat", 1)
         n.finish()
         return Segment(kind, params, count, tuple(Extremes(w, c.shape, c.depth_m, math.hypot(*c.shear_m))
-                                                  for c, w in zip(params["contacts"], wheres, strict=True)), where)
+                                                  for (_, c), w in zip(params["contacts"], wheres, strict=True)), where)
     elif kind == "press_grid":
         params.update(cols=n.count("cols"), rows=n.count("rows"), margin_m=n.number("margin_mm", 0.0, low=0.0) * MM,
                       jitter_m=n.number("jitter_mm", 0.0, low=0.0) * MM,
@@ -195,7 +230,7 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
         count, deepest, shear = n.count("frames"), params["depth_m"][1], params["shear_m"][1]
     else:  # path
         count = n.count("frames", low=2)
-        params.update(waypoints_m=_waypoints_m(n),
+        params.update(waypoints=_waypoints(n),
                       depth_m=n.number("depth_mm", low=0) * MM,
                       ramp_frames=n.count("ramp_frames", 0, low=0),
                       shear_m=tuple(v * MM for v in n.numbers("shear_mm", 2, [0.0, 0.0])))
@@ -213,12 +248,13 @@ def _rest(p, rng, grid, n):
 
 def _press(p, rng, grid, n):
     for depth in p["depths_m"]:
-        yield (Contact(p["x_m"], p["y_m"], depth, p["shape"], p["shear_m"], p["friction"]),)
+        yield (Contact(*p["place"].metres(grid), depth, p["shape"], p["shear_m"], p["friction"]),)
 
 
 def _contacts(p, rng, grid, n):
+    contacts = _placed(p["contacts"], grid)
     for _ in range(n):
-        yield p["contacts"]
+        yield contacts
 
 
 def _press_grid(p, rng, grid, n):
@@ -297,7 +333,7 @@ def _random_presses(p, rng, grid, n):
 
 def _path(p, rng, grid, n):
     """Constant speed along the waypoints; depth ramps linearly over the first and last `ramp_frames` frames."""
-    points = p["waypoints_m"]
+    points = np.array([w.metres(grid) for w in p["waypoints"]])
     lengths = np.hypot(*np.diff(points, axis=0).T)
     arc = np.concatenate([[0.0], np.cumsum(lengths)])
     ramp = p["ramp_frames"]
@@ -364,11 +400,11 @@ def _check_touches(x_m: float, y_m: float, shape: Sphere | FlatPunch, depth_m: f
 
 
 def _check_press(p, where: str, grid: BinGrid) -> None:
-    _check_touches(p["x_m"], p["y_m"], p["shape"], max(p["depths_m"]), where, grid)
+    _check_touches(*p["place"].metres(grid), p["shape"], max(p["depths_m"]), where, grid)
 
 
 def _check_contacts(p, where: str, grid: BinGrid) -> None:
-    for i, contact in enumerate(p["contacts"]):
+    for i, contact in enumerate(_placed(p["contacts"], grid)):
         _check_touches(contact.x_m, contact.y_m, contact.shape, contact.depth_m, f"{where}.contacts[{i}]", grid)
 
 
@@ -376,8 +412,9 @@ def _check_path(p, where: str, grid: BinGrid) -> None:
     """Every waypoint within reach of the surface at the path's depth; so then is every place between two of them
     (the surface grown by that reach is convex). The demo scene's path ran beside a smaller surface unchecked, most
     of its frames pressing nothing."""
-    for i, (x_m, y_m) in enumerate(p["waypoints_m"]):
-        _check_touches(float(x_m), float(y_m), p["shape"], p["depth_m"], f"{where}.waypoints_mm[{i}]", grid)
+    key = "waypoints_fraction" if p["waypoints"][0].fraction else "waypoints_mm"
+    for i, waypoint in enumerate(p["waypoints"]):
+        _check_touches(*waypoint.metres(grid), p["shape"], p["depth_m"], f"{where}.{key}[{i}]", grid)
 
 
 _SURFACE_CHECKS = {"press_grid": _check_press_grid, "random_presses": _check_random_presses, "press": _check_press,
@@ -386,10 +423,10 @@ _SURFACE_CHECKS = {"press_grid": _check_press_grid, "random_presses": _check_ran
 
 # --- contacts that overlap ------------------------------------------------------------------------------------------
 
-def _overlapping_contacts(p, where: str) -> str | None:
+def _overlapping_contacts(p, where: str, grid: BinGrid) -> str | None:
     """Two contacts of the frame whose contact areas overlap (centres closer than their contact radii together). A
     contact at depth 0 presses nothing, a flat punch's radius notwithstanding."""
-    pressing = [(i, c) for i, c in enumerate(p["contacts"]) if c.depth_m > 0]
+    pressing = [(i, c) for i, c in enumerate(_placed(p["contacts"], grid)) if c.depth_m > 0]
     for (i, a), (j, b) in itertools.combinations(pressing, 2):
         apart = math.hypot(a.x_m - b.x_m, a.y_m - b.y_m)
         reach = contact_radius_m(a.shape, a.depth_m) + contact_radius_m(b.shape, b.depth_m)
@@ -399,7 +436,7 @@ def _overlapping_contacts(p, where: str) -> str | None:
     return None
 
 
-def _overlapping_random_presses(p, where: str) -> str | None:
+def _overlapping_random_presses(p, where: str, _grid: BinGrid) -> str | None:
     """Frames of several presses whose min_separation lets two contact areas overlap at the deepest press."""
     reach = 2 * contact_radius_m(p["shape"], p["depth_m"][1])
     if p["contacts_per_frame"][1] > 1 and p["min_separation_m"] < reach:
@@ -467,14 +504,14 @@ class Scene:
         for effect in self.effects:
             effect.camera_mask(ctx)
 
-    def check_overlaps(self, ground_truth: GroundTruthModel) -> None:
-        """SceneError where two contacts of a frame may overlap and `ground_truth` computes each contact alone and adds
-        their forces (GroundTruthModel.adds_contacts): it would count the shared part twice."""
+    def check_overlaps(self, ground_truth: GroundTruthModel, grid: BinGrid) -> None:
+        """SceneError where two contacts of a frame on `grid`'s surface may overlap and `ground_truth` computes each
+        contact alone and adds their forces (GroundTruthModel.adds_contacts): it would count the shared part twice."""
         if not ground_truth.adds_contacts:
             return
         for segment in self.segments:
             check = _OVERLAP_CHECKS.get(segment.kind)
-            problem = check(segment.params, segment.where) if check else None
+            problem = check(segment.params, segment.where, grid) if check else None
             if problem:
                 raise SceneError(f"{problem}: the {ground_truth.name} ground-truth model computes each contact alone "
                                  "and adds their forces, counting the overlap twice; move them apart, or label the "

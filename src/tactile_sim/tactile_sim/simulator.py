@@ -98,7 +98,7 @@ class Simulator:
         """SceneError for a scene the sensor cannot play (Scene.validate), or whose contacts may overlap where the
         ground-truth model would over-count them (Scene.check_overlaps)."""
         scene.validate(self.sensor)
-        scene.check_overlaps(self.ground_truth)
+        scene.check_overlaps(self.ground_truth, self.sensor.grid)
 
     def _frames(self, scene: Scene, effects: EffectChain) -> Iterator[Frame]:
         period_s = 1.0 / self.sensor.frame_rate_hz

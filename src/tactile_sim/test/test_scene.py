@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -5,7 +6,7 @@ import pytest
 import yaml
 
 from tactile_description import SENSOR_ENV, SensorConfigError, load_sensor
-from tactile_sim.contact import FlatPunch, Sphere, max_depth_m
+from tactile_sim.contact import FlatPunch, Sphere, ground_truth_model, max_depth_m
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import load_scene, parse_scene, scenes_directory
 
@@ -31,6 +32,50 @@ def test_shipped_scenes_load_for_both_sensors_and_respect_the_depth_limit(name, 
         for c in contacts:
             assert 0.0 <= c.depth_m <= max_depth_m(sensor, c.shape)
             assert math.isfinite(c.x_m) and math.isfinite(c.y_m)
+
+
+@pytest.mark.parametrize("name", [n for n in SHIPPED if n != "effects"])  # effects names cameras cam1-cam3
+def test_shipped_scenes_fit_a_surface_of_half_the_width(name, sensor):
+    """Places in fractions of the surface (demo, shear, multi_contact) and scenes that follow it (press_grid,
+    random_presses) fit a 24.5 mm strip; the demo's path in millimetres ran beside it."""
+    strip = dataclasses.replace(sensor, grid=dataclasses.replace(sensor.grid, width_m=24.5e-3))
+    scene = load_scene(name, strip)
+    scene.check_overlaps(ground_truth_model(strip), strip.grid)
+    beside = 3e-3 if name == "edge_corner" else 0.0  # its presses reach up to 3 mm beyond the edges, on purpose
+    # multi_contact's random presses, four 12 mm apart, find no room on the strip: refused as they are made, saying so
+    frames = 2 if name == "multi_contact" else 2000
+    assert all(-beside <= c.x_m <= 24.5e-3 + beside
+               for contacts in _all_contacts(scene.limited(frames), strip) for c in contacts)
+
+
+def test_places_in_fractions_of_the_surface_follow_its_size(sensor):
+    """Where millimetres stay where they are."""
+    scene = parse_scene(_scene(timeline=[
+        {"press": {"x_fraction": 0.5, "y_fraction": 0.25, "depths_mm": [1.0]}},
+        {"contacts": {"contacts": [{"x_fraction": 0.25, "y_fraction": 0.5, "depth_mm": 1.0},
+                                   {"x_mm": 10, "y_mm": 40, "depth_mm": 1.0}]}},
+        {"path": {"frames": 3, "depth_mm": 1.0, "waypoints_fraction": [[0.2, 0.2], [0.8, 0.8]]}}]), "test.yaml")
+    strip = dataclasses.replace(sensor, grid=dataclasses.replace(sensor.grid, width_m=24.5e-3))
+    for surface, width in ((sensor, 49e-3), (strip, 24.5e-3)):
+        press, contacts, start, _, end = _all_contacts(scene, surface)
+        assert (press[0].x_m, press[0].y_m) == pytest.approx((0.5 * width, 0.25 * 51e-3))
+        assert contacts[0].x_m == pytest.approx(0.25 * width) and contacts[1].x_m == pytest.approx(10e-3)
+        assert (start[0].x_m, end[0].x_m) == pytest.approx((0.2 * width, 0.8 * width))
+
+
+@pytest.mark.parametrize("segment, message", [
+    ({"press": {"x_fraction": 0.5, "y_mm": 20, "depths_mm": [1.0]}},
+     r"timeline\[0\].press: give x_mm and y_mm, or x_fraction and y_fraction, not both"),
+    ({"path": {"frames": 3, "waypoints_mm": [[1, 1], [2, 2]], "waypoints_fraction": [[0, 0], [1, 1]]}},
+     r"timeline\[0\].path: give waypoints_mm or waypoints_fraction, not both"),
+    ({"path": {"frames": 3, "waypoints_fraction": [[0.5, 0.5]]}},
+     r"timeline\[0\].path.waypoints_fraction must list at least two \[x, y\] points \(finite numbers, fractions\)"),
+    ({"path": {"frames": 3, "depth_mm": 1.0, "waypoints_fraction": [[0.5, 0.5], [1.2, 0.5]]}},
+     r"timeline\[0\].path.waypoints_fraction\[1\]: a press at \(58.8, 25.5\) mm is 9.8 mm off"),
+])
+def test_places_in_fractions_are_checked_as_those_in_millimetres(sensor, segment, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(_scene(timeline=[segment]), "test.yaml").validate(sensor)
 
 
 def test_paper_grid_is_a_seeded_grid_of_vertical_sphere_presses_up_to_1_5_mm(sensor):
