@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from tactile_description import SensorDescription
+from tactile_description.command_line import stop_signals_ignored
 from tactile_description.value_checks import is_whole_number
 from tactile_fusion.artifacts import (
     METRICS_JSON,
@@ -197,8 +198,11 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
         "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
                     "torch": torch.__version__},
     })
-    for checkpoint in out_dir.glob(CHECKPOINTS):
-        checkpoint.unlink()  # training finished: the model files supersede the checkpoints
+    # Training finished: the model files supersede the checkpoints. A stop between two deletions (microseconds) would
+    # leave some behind, and the stop's message would offer them to --resume: the stop waits for the last.
+    with stop_signals_ignored():
+        for checkpoint in out_dir.glob(CHECKPOINTS):
+            checkpoint.unlink()
     return metrics
 
 

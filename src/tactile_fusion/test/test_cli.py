@@ -473,6 +473,27 @@ def test_a_sigterm_while_train_simulates_ends_it_in_one_line_and_removes_the_new
     assert "Traceback" not in result.stderr and not (tmp_path / "new").exists()
 
 
+def test_a_stop_while_train_deletes_its_checkpoints_waits_for_the_last(tmp_path, monkeypatch):
+    """The training has finished; a SIGTERM between the deletions of two checkpoints left the others behind, and the
+    stop's message offered them to --resume. The signal is sent to this process as the first checkpoint goes."""
+    from tactile_fusion.cli import main
+
+    unlink = Path.unlink
+    stopped = []
+
+    def unlink_and_stop(path, *args, **kwargs):
+        if path.name.startswith("checkpoint_") and not stopped:
+            stopped.append(path.name)
+            os.kill(os.getpid(), signal.SIGTERM)
+        unlink(path, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "unlink", unlink_and_stop)
+    out = tmp_path / "model"
+    assert main(["train", "--out", str(out), "--frames", "60", "--epochs", "1", "--head-epochs", "1",
+                 "--head-cycles", "1", "--threads", "1", *TINY]) == 0
+    assert stopped and not list(out.glob("checkpoint_*.pt")) and (out / TRAINING_JSON).is_file()
+
+
 def test_ctrl_c_during_training_says_the_checkpoints_resume_it(tmp_path):
     """Before: Python's KeyboardInterrupt traceback, with no word that the run can go on."""
     out = tmp_path / "model"
