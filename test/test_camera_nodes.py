@@ -195,9 +195,10 @@ def test_a_node_refusing_a_parameter_says_why_in_one_line_and_exits_with_status_
 
 @pytest.mark.parametrize("problem", ["particles_in_the_rigid_base", "a_scene_that_fails_while_it_plays"])
 def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(ros_probe, tmp_path, problem):
-    """A sensor description that only the simulator refuses, and a scene that fails only once its frames are made
-    (no room for four presses 45 mm apart, after three frames at rest), ended sim_camera_node in a traceback with
-    status 1, the second with the graph running (found in review). The probe listens, so that the scene plays."""
+    """A sensor description that only the simulator refuses, and a scene whose frames cannot be made (no room for four
+    presses 45 mm apart, after three frames at rest), ended sim_camera_node in a traceback with status 1, the second
+    with the graph running (found in review); the simulator now finds the second before any frame
+    (Scene.check_playable). The probe listens, so that the scene would play."""
     if problem == "particles_in_the_rigid_base":
         config = tmp_path / "sensor.yaml"
         config.write_text(re.sub(r"(?m)^  layer: particle_layer$", "  layer: transparent_base",

@@ -93,15 +93,21 @@ def test_the_demo_refuses_a_duration_that_would_end_at_once_or_never(duration, t
     assert f"argument --duration: must be a finite number of seconds > 0, got '{duration}'" in run.stderr
 
 
-def test_the_demo_refuses_a_scene_whose_contacts_overlap_before_it_starts_a_node(tmp_path):
-    """The simulated camera node's ground-truth model would count the overlap twice, and refuse the scene itself only
-    once the graph had started."""
-    scene = tmp_path / "overlap.yaml"
-    scene.write_text(yaml.safe_dump({"name": "overlap", "seed": 1, "timeline": [{"contacts": {"contacts": [
-        {"x_mm": 20, "y_mm": 20, "depth_mm": 1.0}, {"x_mm": 22, "y_mm": 20, "depth_mm": 1.0}]}}]}))
+@pytest.mark.parametrize("segment, refusal", [
+    ({"contacts": {"contacts": [{"x_mm": 20, "y_mm": 20, "depth_mm": 1.0}, {"x_mm": 22, "y_mm": 20, "depth_mm": 1.0}]}},
+     "contacts[0] and contacts[1] overlap: 2 mm apart"),
+    ({"random_presses": {"frames": 10, "contacts_per_frame": 4, "min_separation_mm": 45.0, "depth_mm": [0.3, 0.5]}},
+     "found room for only"),
+], ids=["overlapping-contacts", "no-room-for-random-presses"])
+def test_the_demo_refuses_a_scene_the_simulated_cameras_cannot_play_before_it_starts_a_node(tmp_path, segment,
+                                                                                             refusal):
+    """Contacts the simulated camera node's ground-truth model would count twice, or random presses that find no room
+    for their separation: the node refused them only once the graph had started, and the demo ended with status 1
+    and a summary of 0 estimates (found in review)."""
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(yaml.safe_dump({"name": "refused", "seed": 1, "timeline": [{"rest": {"frames": 3}}, segment]}))
     run = subprocess.run(["tactile-demo", "--scene", str(scene), "--log-dir", str(tmp_path / "logs")],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2, run.stderr
-    assert "contacts[0] and contacts[1] overlap: 2 mm apart" in run.stderr, run.stderr
-    assert "counting the overlap twice" in run.stderr
+    assert refusal in run.stderr, run.stderr
     assert len(run.stderr.splitlines()) == 1 and not list((tmp_path / "logs").glob("*.log"))

@@ -39,7 +39,7 @@ def check_tool_inputs(sensor_config: str, scene: str, log_dir: Path) -> SensorDe
     sensor description; raises SensorConfigError, SceneError or LogDirError, each with a one-line message naming the
     file."""
     sensor = load_sensor(sensor_config)
-    load_scene(scene, sensor).check_overlaps(ground_truth_model(sensor), sensor.grid)  # the node's default model
+    load_scene(scene).check_playable(sensor, ground_truth_model(sensor))  # as the node's Simulator, with its model
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
         tempfile.TemporaryFile(dir=log_dir).close()  # a directory that takes no file (/proc, read-only, not ours)

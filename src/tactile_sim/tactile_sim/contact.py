@@ -147,7 +147,7 @@ class GroundTruthModel(Protocol):
 
     name: str
     #: Each contact computed alone and the bin forces added: contacts whose areas overlap are over-counted, and the
-    #: simulator refuses scenes that may have them (Scene.check_overlaps).
+    #: simulator refuses scenes that may have them (Scene.check_playable).
     adds_contacts: bool
 
     def bin_forces(self, contacts: Sequence[Contact]) -> np.ndarray:

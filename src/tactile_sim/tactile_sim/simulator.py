@@ -95,10 +95,8 @@ class Simulator:
         return self._frames(scene, bind_effects(scene.effects, scene.effect_context(self.sensor)))
 
     def check_playable(self, scene: Scene) -> None:
-        """SceneError for a scene the sensor cannot play (Scene.validate), or whose contacts may overlap where the
-        ground-truth model would over-count them (Scene.check_overlaps)."""
-        scene.validate(self.sensor)
-        scene.check_overlaps(self.ground_truth, self.sensor.grid)
+        """SceneError for a scene this simulator cannot play (Scene.check_playable)."""
+        scene.check_playable(self.sensor, self.ground_truth)
 
     def _frames(self, scene: Scene, effects: EffectChain) -> Iterator[Frame]:
         period_s = 1.0 / self.sensor.frame_rate_hz
