@@ -141,9 +141,11 @@ def _placed(contacts, grid: BinGrid) -> tuple[Contact, ...]:
 
 def _place(n: YamlFields) -> Place:
     """x_mm and y_mm, or x_fraction and y_fraction of the surface's width and length."""
-    if n.has("x_fraction") or n.has("y_fraction"):
-        if n.has("x_mm") or n.has("y_mm"):
-            raise SceneError(f"{n.where}: give x_mm and y_mm, or x_fraction and y_fraction, not both")
+    mm, fraction = n.has("x_mm") or n.has("y_mm"), n.has("x_fraction") or n.has("y_fraction")
+    if mm == fraction:
+        raise SceneError(f"{n.where}: " + ("give x_mm and y_mm, or x_fraction and y_fraction, not a mix of the two"
+                                           if mm else "missing its place: x_mm and y_mm, or x_fraction and y_fraction"))
+    if fraction:
         return Place(n.number("x_fraction"), n.number("y_fraction"), fraction=True)
     return Place(n.number("x_mm") * MM, n.number("y_mm") * MM, fraction=False)
 
@@ -162,8 +164,9 @@ def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:
 def _waypoints(n: YamlFields) -> tuple[Place, ...]:
     """waypoints_mm, or waypoints_fraction of the surface's width and length."""
     fraction = n.has("waypoints_fraction")
-    if fraction and n.has("waypoints_mm"):
-        raise SceneError(f"{n.where}: give waypoints_mm or waypoints_fraction, not both")
+    if fraction == n.has("waypoints_mm"):
+        raise SceneError(f"{n.where}: " + ("give waypoints_mm or waypoints_fraction, not both" if fraction
+                                           else "missing its waypoints: waypoints_mm or waypoints_fraction"))
     key, unit, scale = ("waypoints_fraction", "fractions", 1.0) if fraction else ("waypoints_mm", "mm", MM)
     waypoints = n.raw(key, required=True)
     if not (isinstance(waypoints, list) and len(waypoints) >= 2 and all(
@@ -384,28 +387,29 @@ def _check_random_presses(p, where: str, grid: BinGrid) -> None:
                          f"min_separation_mm or contacts_per_frame")
 
 
-def _check_touches(x_m: float, y_m: float, shape: Sphere | FlatPunch, depth_m: float, where: str, grid: BinGrid
-                   ) -> None:
+def _check_touches(place: Place, shape: Sphere | FlatPunch, depth_m: float, where: str, grid: BinGrid) -> None:
     """A contact must touch the surface at its deepest: one farther off presses nothing, in every frame. Scenes are in
     mm of the reference sensor's surface, and on a smaller one (a 24.5 mm strip) most of the demo scene's presses
     were off it, accepted without a word, with no force at all (found in review)."""
+    x_m, y_m = place.metres(grid)
     off_x = max(-x_m, 0.0, x_m - grid.width_m)
     off_y = max(-y_m, 0.0, y_m - grid.length_m)
     off, reach = math.hypot(off_x, off_y), contact_radius_m(shape, depth_m)  # scenes press spheres and punches
     if off > 0 and off >= reach:
+        why = ("fractions of the surface's width and length beyond 0 to 1 lie beside it" if place.fraction else
+               "positions are in mm from the surface's corner; a scene made for another sensor may not fit this one")
         raise SceneError(f"{where}: a press at ({x_m / MM:g}, {y_m / MM:g}) mm is {off / MM:.3g} mm off the "
                          f"{grid.width_m / MM:g} x {grid.length_m / MM:g} mm surface, beyond the {reach / MM:.3g} mm "
-                         "its contact reaches at its deepest: it would press nothing (positions are in mm from the "
-                         "surface's corner; a scene made for another sensor may not fit this one)")
+                         f"its contact reaches at its deepest: it would press nothing ({why})")
 
 
 def _check_press(p, where: str, grid: BinGrid) -> None:
-    _check_touches(*p["place"].metres(grid), p["shape"], max(p["depths_m"]), where, grid)
+    _check_touches(p["place"], p["shape"], max(p["depths_m"]), where, grid)
 
 
 def _check_contacts(p, where: str, grid: BinGrid) -> None:
-    for i, contact in enumerate(_placed(p["contacts"], grid)):
-        _check_touches(contact.x_m, contact.y_m, contact.shape, contact.depth_m, f"{where}.contacts[{i}]", grid)
+    for i, (place, contact) in enumerate(p["contacts"]):
+        _check_touches(place, contact.shape, contact.depth_m, f"{where}.contacts[{i}]", grid)
 
 
 def _check_path(p, where: str, grid: BinGrid) -> None:
@@ -414,7 +418,7 @@ def _check_path(p, where: str, grid: BinGrid) -> None:
     of its frames pressing nothing."""
     key = "waypoints_fraction" if p["waypoints"][0].fraction else "waypoints_mm"
     for i, waypoint in enumerate(p["waypoints"]):
-        _check_touches(*waypoint.metres(grid), p["shape"], p["depth_m"], f"{where}.{key}[{i}]", grid)
+        _check_touches(waypoint, p["shape"], p["depth_m"], f"{where}.{key}[{i}]", grid)
 
 
 _SURFACE_CHECKS = {"press_grid": _check_press_grid, "random_presses": _check_random_presses, "press": _check_press,

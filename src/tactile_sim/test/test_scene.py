@@ -71,13 +71,18 @@ def test_places_in_fractions_of_the_surface_follow_its_size(sensor):
 
 @pytest.mark.parametrize("segment, message", [
     ({"press": {"x_fraction": 0.5, "y_mm": 20, "depths_mm": [1.0]}},
-     r"timeline\[0\].press: give x_mm and y_mm, or x_fraction and y_fraction, not both"),
+     r"timeline\[0\].press: give x_mm and y_mm, or x_fraction and y_fraction, not a mix of the two"),
+    ({"press": {"depths_mm": [1.0]}},
+     r"timeline\[0\].press: missing its place: x_mm and y_mm, or x_fraction and y_fraction"),
+    ({"path": {"frames": 3, "depth_mm": 1.0}}, r"timeline\[0\].path: missing its waypoints: waypoints_mm or "
+                                              r"waypoints_fraction"),
     ({"path": {"frames": 3, "waypoints_mm": [[1, 1], [2, 2]], "waypoints_fraction": [[0, 0], [1, 1]]}},
      r"timeline\[0\].path: give waypoints_mm or waypoints_fraction, not both"),
     ({"path": {"frames": 3, "waypoints_fraction": [[0.5, 0.5]]}},
      r"timeline\[0\].path.waypoints_fraction must list at least two \[x, y\] points \(finite numbers, fractions\)"),
     ({"path": {"frames": 3, "depth_mm": 1.0, "waypoints_fraction": [[0.5, 0.5], [1.2, 0.5]]}},
-     r"timeline\[0\].path.waypoints_fraction\[1\]: a press at \(58.8, 25.5\) mm is 9.8 mm off"),
+     r"timeline\[0\].path.waypoints_fraction\[1\]: a press at \(58.8, 25.5\) mm is 9.8 mm off .* it would press "
+     r"nothing \(fractions of the surface's width and length beyond 0 to 1 lie beside it\)"),
 ])
 def test_places_in_fractions_are_checked_as_those_in_millimetres(sensor, segment, message):
     with pytest.raises(SceneError, match=message):
