@@ -1,7 +1,8 @@
 """Simulated data sets on disk: a directory of .npy arrays plus meta.json, written frame by frame.
 
-Format (version 1), for N frames, C cameras of H x W pixels, a rows x cols bin grid:
-  meta.json        format, format_version, complete, sensor_name, sensor_sha256, camera_ids, rows, cols,
+Format (version 2), for N frames, C cameras of H x W pixels, a rows x cols bin grid:
+  meta.json        format, format_version, complete, sensor_name, sensor (the description's physical fields,
+                   tactile_description.made_for, as a model.json keeps them), camera_ids, rows, cols,
                    image_height, image_width, frame_count, frame_rate_hz, scene, scene_source, seed,
                    ground_truth (model name), effects (names)
   reference.npy    (C, H, W) uint8     the rest frames (no contact, no effects)
@@ -16,8 +17,6 @@ meta.json says `complete: false` until the last frame is on disk. `open_dataset`
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -28,22 +27,20 @@ from tqdm import tqdm
 
 from tactile_description import SensorDescription
 from tactile_description.json_file import read_json
+from tactile_description.made_for import changed_fields, changes_text, made_for_problem, physical_fields
 from tactile_description.value_checks import is_whole_number
 from tactile_sim.contact import contact_record
 from tactile_sim.scene import Scene
 
 FORMAT = "tactile_sim.dataset"
-FORMAT_VERSION = 1
+#: 2 since 2026-11-27: meta.json holds the sensor's physical description (version 1: a hash of the whole description,
+#: its name included, so that a renamed copy of a sensor refused its data sets, naming nothing that differed).
+FORMAT_VERSION = 2
 ARRAYS = ("reference", "images", "forces", "camera_ok", "times_s")
 
 
 class DatasetError(ValueError):
     """A data set directory that is missing, incomplete, corrupt or made for another sensor."""
-
-
-def sensor_sha256(sensor: SensorDescription) -> str:
-    """Hash of everything in a sensor description except the file it came from."""
-    return hashlib.sha256(repr(dataclasses.replace(sensor, source="")).encode()).hexdigest()
 
 
 def _write_meta(directory: Path, meta: dict) -> None:
@@ -80,7 +77,7 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
     height, width = sim.image_shape
     meta = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "complete": False,
-        "sensor_name": sensor.name, "sensor_sha256": sensor_sha256(sensor), "camera_ids": list(sensor.camera_ids),
+        "sensor_name": sensor.name, "sensor": physical_fields(sensor), "camera_ids": list(sensor.camera_ids),
         "rows": sensor.grid.rows, "cols": sensor.grid.cols, "image_height": height, "image_width": width,
         "frame_count": n, "frame_rate_hz": sensor.frame_rate_hz, "scene": scene.name,
         "scene_source": scene.source, "seed": scene.seed, "ground_truth": sim.ground_truth.name,
@@ -232,9 +229,14 @@ def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = Non
 
 def check_made_for(dataset: Dataset, sensor: SensorDescription) -> None:
     """Refuse (DatasetError) a data set made with another sensor description than `sensor`: same camera ids and bin
-    grid, say, but another gel, camera pose or surface, whose images and forces are not this sensor's."""
-    meta = dataset.meta
-    if meta.get("sensor_sha256") != sensor_sha256(sensor):
-        raise DatasetError(f"{dataset.path} was made for sensor {meta.get('sensor_name')!r} with another description "
-                           f"than {sensor.name!r} ({sensor.source}); pass the sensor description it was made with "
-                           "(--sensor), or regenerate it for this sensor")
+    grid, say, but another gel, camera pose or surface, whose images and forces are not this sensor's. Its name, frame
+    and frame rate may differ (tactile_description.made_for), as for a model."""
+    meta_path = dataset.path / "meta.json"
+    problem = made_for_problem(dataset.meta.get("sensor"))
+    if problem:
+        raise DatasetError(f"{meta_path}: sensor (the description it was made for): {problem}; regenerate the data set")
+    changes = changed_fields(dataset.meta["sensor"], physical_fields(sensor))
+    if changes:
+        raise DatasetError(f"{dataset.path} was made for sensor {dataset.meta.get('sensor_name')!r} with another "
+                           f"description than {sensor.source or sensor.name} (differing: {changes_text(changes)}); "
+                           "pass the sensor description it was made with (--sensor), or regenerate it for this sensor")

@@ -110,6 +110,12 @@ def test_incomplete_and_foreign_directories_are_reported(sim, written, tmp_path)
     skin = load_sensor(scenes_directory().parent / "skin_3x3.yaml")
     with pytest.raises(DatasetError, match="made for sensor 'trueeb2020_4cam'"):
         open_dataset(written, skin)
+    damaged = _copy_of(written, tmp_path / "damaged")
+    (damaged / "meta.json").write_text(json.dumps(dict(meta, sensor={"grid": {}})))
+    with pytest.raises(DatasetError, match=r"meta.json: sensor \(the description it was made for\): lacks "
+                                           r"\['gel_layers', 'particles', 'cameras'\]; regenerate the data set"):
+        open_dataset(damaged, sim.sensor)
+    open_dataset(damaged)  # without a sensor to check it against, it is not read
 
 
 @pytest.mark.parametrize("name, content, message", [
