@@ -73,27 +73,40 @@ def _threads(args) -> None:
         torch.set_num_threads(args.threads)
 
 
+def _conv_channels(args) -> tuple[int, ...]:
+    return tuple(int(c) for c in args.conv_channels.split(",")) if args.conv_channels else ModelConfig().conv_channels
+
+
 def _model_config(args) -> ModelConfig:
-    default = ModelConfig()
-    channels = tuple(int(c) for c in args.conv_channels.split(",")) if args.conv_channels else default.conv_channels
-    return ModelConfig(image_size=args.image_size, conv_channels=channels, hidden_features=args.hidden_features,
-                       camera_features=args.camera_features, fusion_rank=args.fusion_rank or None,
-                       feature_activation=args.feature_activation)
+    return ModelConfig(image_size=args.image_size, conv_channels=_conv_channels(args),
+                       hidden_features=args.hidden_features, camera_features=args.camera_features,
+                       fusion_rank=args.fusion_rank or None, feature_activation=args.feature_activation)
 
 
 class SettingsError(ValueError):
     """A training or model setting out of its range (the message names it)."""
 
 
-def _image_size(sensor) -> int:
+def _image_size(sensor, args) -> int:
     """The side of the cameras' square output images, which the model takes; SettingsError for other images (a 128 x
-    64 output failed in torch's matrix product once the frames were simulated: found in review)."""
+    64 output failed in torch's matrix product once the frames were simulated: found in review), or for a side that
+    the conv blocks (--conv-channels) cannot halve each (ModelConfig's refusal named neither the file nor the option:
+    found by the docs walkthrough)."""
     sizes = {camera.output_size for camera in sensor.cameras}
     size = next(iter(sizes))
     if len(sizes) != 1 or size[0] != size[1]:
         raise SettingsError(f"{sensor.source}: the model takes square camera images of one size, the sensor "
                             f"description's cameras.output is {' and '.join(f'{w} x {h}' for w, h in sorted(sizes))} "
                             "px; make it square (the reference sensor's: 128 x 128)")
+    try:
+        blocks = len(_conv_channels(args))
+    except ValueError:  # a malformed --conv-channels: _settings refuses it, naming it
+        return size[0]
+    if size[0] % 2 ** blocks:
+        raise SettingsError(f"{sensor.source}: the cameras' output images, {size[0]} x {size[0]} px, must be a "
+                            f"multiple of {2 ** blocks} px: each of the model's {blocks} conv blocks (--conv-channels) "
+                            f"halves them; make cameras.output a multiple of {2 ** blocks} (the reference sensor's: "
+                            "128 x 128), or give fewer --conv-channels")
     return size[0]
 
 
@@ -157,7 +170,7 @@ def cmd_train(args) -> int:
         check_resumable(args.out)
     _threads(args)
     sensor = load_sensor(args.sensor)
-    args.image_size = _image_size(sensor)
+    args.image_size = _image_size(sensor, args)
     model_config, train_config = _settings(args, sensor.n_cameras)
     head_extra = _further_draws(args, sensor)
     _output_dir(args.out)  # once the settings are accepted, before the data is simulated and the model trained
@@ -296,7 +309,7 @@ def cmd_recalibrate(args) -> int:
     _threads(args)
     sensor = load_sensor(args.sensor)
     added_camera = _setting(camera_to_add, sensor, args.add_camera)
-    args.image_size = _image_size(sensor)
+    args.image_size = _image_size(sensor, args)
     # The base model, without the added camera, has the fewest cameras.
     model_config, train_config = _settings(args, sensor.n_cameras - 1, recalibration_epochs=args.recalibration_epochs)
     fractions = _fractions(args.fractions)

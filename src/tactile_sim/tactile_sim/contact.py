@@ -392,7 +392,14 @@ def ground_truth_model(sensor: SensorDescription, name: str = "analytic") -> Gro
 
 def press_contact(x_mm: float, y_mm: float, depth_mm: float, shape: str = "sphere", radius_mm: float | None = None,
                   shear_x_mm: float = 0.0, shear_y_mm: float = 0.0, friction: float = 1.0) -> Contact:
-    """The contact described by the `tactile-sim press` options (millimetres, as typed on the command line)."""
+    """The contact described by the `tactile-sim press` options (millimetres, as typed on the command line). A value
+    refused is named by its option, in millimetres: Contact's own refusal named its field, in metres."""
+    for option, value, low in (("--x-mm", x_mm, -math.inf), ("--y-mm", y_mm, -math.inf), ("--depth-mm", depth_mm, 0.0),
+                               ("--shear-x-mm", shear_x_mm, -math.inf), ("--shear-y-mm", shear_y_mm, -math.inf),
+                               ("--radius-mm", 1.0 if radius_mm is None else radius_mm, 1e-9)):
+        if not (is_number(value) and value >= low):
+            bound = "" if low == -math.inf else " > 0" if low > 0 else " >= 0"
+            raise ValueError(f"{option} must be a finite number of millimetres{bound}, got {value!r}")
     if not (is_number(friction) and 0.0 <= friction <= MAX_FRICTION):
         raise ValueError(f"--friction must be a Coulomb coefficient from 0 to {MAX_FRICTION:g}, as in scenes, got "
                          f"{friction!r}")

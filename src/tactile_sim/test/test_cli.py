@@ -172,6 +172,13 @@ def test_unusable_paths_unsafe_names_and_huge_counts_get_one_line_and_status_2(t
     # scenes refused it, a press reported fx +0.0000 N for a sheared press at 1e20 (found in review)
     assert "--friction must be a Coulomb coefficient from 0 to 10, as in scenes, got 1e+20" in refused(
         "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "1", "--shear-x-mm", "1", "--friction", "1e20")
+    # named Contact's fields in metres: "Contact.depth_m must be >= 0 (...metres), got -0.001" (docs walkthrough)
+    assert "tactile-sim press: error: --depth-mm must be a finite number of millimetres >= 0, got -1.0" in refused(
+        "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "-1")
+    assert "--x-mm must be a finite number of millimetres, got nan" in refused(
+        "press", "--x-mm", "nan", "--y-mm", "25", "--depth-mm", "1")
+    assert "--radius-mm must be a finite number of millimetres > 0, got -1.0" in refused(
+        "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "1", "--radius-mm", "-1")
     crowded = tmp_path / "crowded.yaml"  # an OverflowError checking that the contacts fit, a directory left behind
     crowded.write_text("name: crowded\nseed: 1\ntimeline: [{random_presses: {frames: 3, depth_mm: 1, "
                        "min_separation_mm: 1.0e+199}}]\n")
