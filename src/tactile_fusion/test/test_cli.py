@@ -88,6 +88,9 @@ def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):
     assert (tmp_path / "metrics.json").is_file()
     assert list(tmp_path.glob("fz_map_*.png"))
     assert report["sensor_changes"] == [] and "warning" not in result.stderr  # trained for this description
+    # The test split's first frames are at rest: all-zero figures that read like a perfect score (docs walkthrough).
+    assert "the 4 frame(s) of paper_grid test split carry no load: their figures say nothing of presses" in \
+        result.stderr, result.stderr
 
 
 def test_eval_warns_of_a_sensor_description_edited_since_training(tiny_model, tmp_path):
