@@ -27,6 +27,7 @@ from tactile_conversions.stop_signals import init_ros, stopped_by_signal
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
 from tactile_description.command_line import (
+    ArgumentParser,
     StopSignal,
     error_exit,
     number_argument,
@@ -145,7 +146,7 @@ def _triple(values) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tactile-bag", description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(prog="tactile-bag", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sensor_help = "sensor description YAML (default: the installed one, or $TACTILE_SENSOR_CONFIG)"
 

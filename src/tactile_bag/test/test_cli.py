@@ -100,8 +100,8 @@ def test_bad_numbers_are_refused_before_anything_runs(sim_bag, tmp_path, capsys,
     args = [str(sim_bag) if a == "BAG" else str(tmp_path / "new_bag") if a == "OUT" else a for a in args]
     with pytest.raises(SystemExit) as stopped:
         main(args)
-    err = capsys.readouterr().err.strip().splitlines()  # argparse's usage, then the error
-    assert stopped.value.code == 2 and message in err[-1]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stopped.value.code == 2 and len(err) == 1 and message in err[0], err  # argparse's usage block went first
     assert not (tmp_path / "new_bag").exists()
 
 

@@ -12,7 +12,6 @@ summary.
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -38,7 +37,7 @@ from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.stop_signals import init_ros, until_stop_signal
 from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path
-from tactile_description.command_line import error_exit, number_argument, stops_quietly_on_closed_pipe
+from tactile_description.command_line import ArgumentParser, error_exit, number_argument, stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import force_metrics
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import SceneError
@@ -124,7 +123,7 @@ class Monitor(Node):
 
 @stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=number_argument(0.0, "seconds"), default=20.0,
                         help="seconds to run the graph (default 20)")
     parser.add_argument("--scene", default="demo", help="simulator scene name or YAML file (default: demo)")

@@ -19,7 +19,6 @@ says how much the graph around the network costs.
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -45,6 +44,7 @@ from tactile_conversions.stop_signals import init_ros, until_stop_signal
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
 from tactile_description import SensorConfigError, default_sensor_path
 from tactile_description.command_line import (
+    ArgumentParser,
     error_exit,
     number_argument,
     stops_quietly_on_closed_pipe,
@@ -119,7 +119,7 @@ def inference_ms(model_dir: str, backend: str, precision: str) -> float:
 
 @stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="tactile-latency", description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(prog="tactile-latency", description=__doc__.split("\n\n")[0])
     parser.add_argument("--windows", type=whole_number_argument(1, "windows"), default=5,
                         help="measurement windows (default %(default)s)")
     parser.add_argument("--window", type=number_argument(0.0, "seconds"), default=4.0,

@@ -53,6 +53,16 @@ def stop_signals_raised():
             signal.signal(number, handler)
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, refusing its arguments in one line on stderr ("tactile-sim render: error: argument --count:
+    ..."), as the commands refuse any other input, with INPUT_ERROR_EXIT. argparse printed its usage block first, 3 to
+    9 lines (found by the docs walkthrough); `--help` shows it. Subcommands' parsers are of this class too
+    (add_subparsers makes them of the parser's own class)."""
+
+    def error(self, message: str):
+        self.exit(INPUT_ERROR_EXIT, f"{self.prog}: error: {one_line(message)}\n")
+
+
 def error_exit(program: str, error: BaseException | str) -> int:
     """Report why a command refuses its input as one line on stderr (a YAML parser's message spans several: they are
     joined); INPUT_ERROR_EXIT, for `main` to return."""

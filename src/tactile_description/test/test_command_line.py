@@ -13,6 +13,8 @@ import pytest
 
 from tactile_description.command_line import (
     CLOSED_PIPE_EXIT,
+    INPUT_ERROR_EXIT,
+    ArgumentParser,
     error_exit,
     number_argument,
     stop_signals_ignored,
@@ -110,3 +112,17 @@ def test_a_ctrl_c_while_stop_signals_are_ignored_neither_cuts_the_block_short_no
             time.sleep(1.0)
     finally:
         signal.signal(signal.SIGINT, inherited)
+
+
+def test_a_parser_and_its_subcommands_refuse_arguments_in_one_line(capsys):
+    """argparse printed its usage block before the error, 3 to 9 lines; the commands refuse other input in one."""
+    parser = ArgumentParser(prog="tactile-sim")
+    render = parser.add_subparsers(dest="command", required=True).add_parser("render")
+    render.add_argument("--count", type=whole_number_argument(1, "previews"))
+    for args, line in ((["render", "--count", "0"], "tactile-sim render: error: argument --count: must be a whole "
+                                                    "number of previews >= 1, got '0'"),
+                       (["draw"], "tactile-sim: error: argument command: invalid choice: 'draw' (choose from "
+                                  "'render')")):
+        with pytest.raises(SystemExit) as refused:
+            parser.parse_args(args)
+        assert refused.value.code == INPUT_ERROR_EXIT and capsys.readouterr().err == line + "\n"

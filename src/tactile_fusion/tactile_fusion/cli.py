@@ -31,6 +31,7 @@ import torch
 
 from tactile_description import SensorConfigError, left_out_components, load_sensor
 from tactile_description.command_line import (
+    ArgumentParser,
     StopSignal,
     error_exit,
     one_line,
@@ -475,7 +476,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tactile-fusion", description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(prog="tactile-fusion", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     def common(p, with_model: bool, threads: int = 1):

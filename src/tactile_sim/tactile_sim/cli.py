@@ -17,6 +17,7 @@ import sys
 
 from tactile_description import SensorConfigError, load_sensor
 from tactile_description.command_line import (
+    ArgumentParser,
     StopSignal,
     error_exit,
     stop_signals_raised,
@@ -35,9 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     # Counts on the command line: 1 to MAX_FRAMES.
     frames, previews, runs = (whole_number_argument(1, unit, maximum=MAX_FRAMES) for unit in ("frames", "previews",
                                                                                                 "runs"))
-    common = argparse.ArgumentParser(add_help=False)
+    common = ArgumentParser(add_help=False)
     common.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
-    parser = argparse.ArgumentParser(prog="tactile-sim", description=__doc__.split("\n\n")[0],
+    parser = ArgumentParser(prog="tactile-sim", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
 
