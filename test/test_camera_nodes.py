@@ -118,7 +118,8 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     # a file named by a parameter that cannot be used ended the node with a traceback
     (BundleNode, {"sensor_config": "/no/such/sensor.yaml"}, "tactile_bundle: parameter sensor_config: "),
     (SimCameraNode, {"scene": "no_such_scene"}, "tactile_sim_cameras: parameter scene: no scene file 'no_such_scene'"),
-    (FusionNode, {"model_dir": "/no/such/model"}, "tactile_fusion: parameter model_dir: no model in /no/such/model"),
+    (FusionNode, {"model_dir": "/no/such/model"}, "tactile_fusion: parameter model_dir: no model in /no/such/model: "
+                                                  "no such directory"),
     # the shipped model, for the reference sensor, refused for another without naming it (found in review)
     (FusionNode, {"sensor_config": str(Path(CONFIG).parent / "skin_3x3.yaml")},
      "tactile_fusion: parameter model_dir (empty: the shipped model, "),

@@ -183,8 +183,9 @@ def read_model_json(model_dir: str | Path) -> dict:
     (camera ids, bin grid, force scale, model config); ModelFileError naming the file otherwise."""
     path = Path(model_dir) / MODEL_JSON
     if not path.exists():
-        raise ModelFileError(f"no model in {model_dir}: {MODEL_JSON} is missing; train one with "
-                             "`tactile-fusion train --out DIR` or give the directory of a trained model")
+        missing = f"{MODEL_JSON} is missing" if Path(model_dir).is_dir() else "no such directory"
+        raise ModelFileError(f"no model in {model_dir}: {missing}; train one with `tactile-fusion train --out DIR` or "
+                             "give the directory of a trained model")
     description = read_json_object(path, REPLACE_MODEL)
     if description.get("format_version") != FORMAT_VERSION:
         raise ModelFileError(f"{path}: format_version {description.get('format_version')!r} is not "
@@ -314,7 +315,8 @@ def check_model_fits(model, sensor: SensorDescription) -> None:
         raise ModelFileError(f"the model is for cameras {list(model.camera_ids)}, {model.rows} x {model.cols} bins "
                              f"and {model.image_size} x {model.image_size} images; the sensor description "
                              f"{sensor.source or sensor.name} has cameras {list(sensor.camera_ids)}, "
-                             f"{sensor.grid.rows} x {sensor.grid.cols} bins and images {sorted(sizes)}: use the "
+                             f"{sensor.grid.rows} x {sensor.grid.cols} bins and "
+                             f"{' and '.join(f'{w} x {h}' for w, h in sorted(sizes))} images: use the "
                              "model and the sensor description of the same sensor")
 
 

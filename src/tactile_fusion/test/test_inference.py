@@ -447,6 +447,13 @@ def test_saved_model_reloads_identically(model_dir, tmp_path):
         assert torch.equal(value, again.state_dict()[key])
 
 
+def test_a_missing_model_directory_and_one_without_model_json_are_told_apart(tmp_path):
+    with pytest.raises(ModelFileError, match=f"no model in {tmp_path / 'none'}: no such directory; train one"):
+        load_predictor(tmp_path / "none")
+    with pytest.raises(ModelFileError, match=f"no model in {tmp_path}: model.json is missing; train one"):
+        load_predictor(tmp_path)
+
+
 def test_a_model_must_fit_the_sensor_in_cameras_bins_and_image_size():
     sensor = load_sensor()
 
@@ -455,7 +462,8 @@ def test_a_model_must_fit_the_sensor_in_cameras_bins_and_image_size():
 
     check_model_fits(TorchPredictor(net(sensor.camera_ids[::-1])), sensor)  # inputs are matched by id: any order
     check_model_fits(net(sensor.camera_ids), sensor)                        # a torch model is checked the same way
-    for wrong, message in ((net(sensor.camera_ids[:3]), "the model is for cameras"),
+    for wrong, message in ((net(sensor.camera_ids[:3]), r"the model is for cameras .* and 128 x 128 images; the sensor "
+                                                        r"description .* 26 x 25 bins and 128 x 128 images: use"),
                            (net(sensor.camera_ids, rows=25), "26 x 25 bins"),
                            (net(sensor.camera_ids, size=64), "64 x 64 images")):
         with pytest.raises(ModelFileError, match=message):
