@@ -194,7 +194,7 @@ def test_a_node_refusing_a_parameter_says_why_in_one_line_and_exits_with_status_
     assert (run.returncode, run.stderr) == (2, line + "\n"), run.stderr
 
 
-@pytest.mark.parametrize("problem", ["particles_in_the_rigid_base", "a_scene_that_fails_while_it_plays"])
+@pytest.mark.parametrize("problem", ["particles_in_the_rigid_base", "a_scene_whose_frames_cannot_be_made"])
 def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(ros_probe, tmp_path, problem):
     """A sensor description that only the simulator refuses, and a scene whose frames cannot be made (no room for four
     presses 45 mm apart, after three frames at rest), ended sim_camera_node in a traceback with status 1, the second

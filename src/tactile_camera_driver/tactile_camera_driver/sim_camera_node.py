@@ -135,18 +135,17 @@ class SimCameraNode(Node):
                 return
             self.playing = True
             self.get_logger().info(f"images subscribed: playing scene {self.scene_name!r} from its first frame")
-        # A scene can fail only once its frames are made (random presses with no room for the separation asked for):
-        # that ends the node as a scene refused at start-up does, in one line (run_node), not in a traceback.
-        with refused_as(self, "parameter scene", SceneError):
-            frame = next(self.frames, None)
-            if frame is None:
-                if not self.loop:
-                    self.get_logger().info(f"scene {self.scene_name!r} ended ({len(self.scene)} frames; loop false): "
-                                           "publishing nothing more")
-                    self.timer.cancel()
-                    return
-                self.frames = self.simulator.stream(self.scene)
-                frame = next(self.frames)
+        # Every frame of the scene can be made: the simulator checked it at start-up (Simulator.check_playable, random
+        # presses' room included), where a refusal ends the node in one line.
+        frame = next(self.frames, None)
+        if frame is None:
+            if not self.loop:
+                self.get_logger().info(f"scene {self.scene_name!r} ended ({len(self.scene)} frames; loop false): "
+                                       "publishing nothing more")
+                self.timer.cancel()
+                return
+            self.frames = self.simulator.stream(self.scene)
+            frame = next(self.frames)
         capture_s = self.get_clock().now().nanoseconds * 1e-9
         for i, camera_id in enumerate(self.sensor.camera_ids):
             if not frame.camera_ok[i]:

@@ -7,6 +7,7 @@ import os
 import select
 import signal
 import sys
+import threading
 from collections.abc import Callable
 
 from tactile_description.value_checks import is_number
@@ -138,7 +139,13 @@ def stop_signals_ignored():
 
     Ignored, not held back: a blocked signal would still reach the process through any thread that does not block it
     (DDS has several), and Python would raise KeyboardInterrupt in the main thread all the same. Python's handlers are
-    restored afterwards; one installed outside Python (rclpy's) is not, so use this at the end of a ROS session."""
+    restored afterwards; one installed outside Python (rclpy's) is not, so use this at the end of a ROS session.
+
+    Outside the main thread it does nothing: Python runs signal handlers there only, and may set them there only (a
+    library function that uses this, such as train_and_export, may run in another thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     previous = {number: signal.signal(number, signal.SIG_IGN) for number in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield

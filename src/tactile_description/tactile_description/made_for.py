@@ -1,5 +1,6 @@
-"""What a model was trained for: the parts of a sensor description that shape its images and forces, kept with the
-model (model.json) so that a description changed since training can be named field by field.
+"""What a model was trained for, or a data set made for: the parts of a sensor description that shape its images and
+forces, kept with the model (model.json) and the data set (meta.json) so that a description changed since can be
+named field by field.
 
 Left out: the sensor's name, TF frame, frame rate and file. Renaming a sensor or running its cameras at another rate
 changes no image the model sees.

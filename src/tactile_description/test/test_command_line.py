@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
@@ -112,6 +113,23 @@ def test_a_ctrl_c_while_stop_signals_are_ignored_neither_cuts_the_block_short_no
             time.sleep(1.0)
     finally:
         signal.signal(signal.SIGINT, inherited)
+
+
+def test_stop_signals_ignored_outside_the_main_thread_runs_the_block_as_it_is():
+    """signal.signal raised ValueError there: train_and_export, which uses it, could not run in a worker thread."""
+    ran, errors = [], []
+
+    def block():
+        try:
+            with stop_signals_ignored():
+                ran.append(signal.getsignal(signal.SIGTERM))
+        except ValueError as exc:
+            errors.append(exc)
+
+    worker = threading.Thread(target=block)
+    worker.start()
+    worker.join()
+    assert errors == [] and ran == [signal.getsignal(signal.SIGTERM)]
 
 
 def test_a_parser_and_its_subcommands_refuse_arguments_in_one_line(capsys):

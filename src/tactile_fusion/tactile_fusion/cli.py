@@ -277,7 +277,7 @@ def cmd_eval(args) -> int:
     results = {}
     sets, skipped = _eval_sets(args, sensor, model_dir)
     for name, frames in sets:
-        if not frames.bin_forces_n.any():  # the default test split's first 120 frames are at rest (walkthrough)
+        if not frames.bin_forces_n.any():  # the default test split's first 21 frames are at rest (walkthrough)
             print(f"tactile-fusion eval: note: the {len(frames)} frame(s) of {name} carry no load: their figures say "
                   "nothing of presses; take more frames (--frames)", file=sys.stderr)
         metrics, predicted = evaluate(predictor, frames, progress=not (args.json or args.quiet))

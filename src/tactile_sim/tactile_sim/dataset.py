@@ -68,10 +68,10 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
         if not overwrite:
             raise DatasetError(f"output directory {directory} is not empty: it holds a data set; choose a new one or "
                                "replace it with --overwrite (overwrite=True in Python)")
-    sim.check_playable(scene)  # before the directory is made: a scene refused leaves none behind
-    directory.mkdir(parents=True, exist_ok=True)
     if frames is not None:
         scene = scene.limited(frames)
+    sim.check_playable(scene)  # before the directory is made: a scene refused leaves none behind
+    directory.mkdir(parents=True, exist_ok=True)
     sensor = sim.sensor
     n, c = len(scene), sensor.n_cameras
     height, width = sim.image_shape

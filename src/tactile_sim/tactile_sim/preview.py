@@ -109,11 +109,11 @@ def preview_indices(n_frames: int, count: int) -> list[int]:
 def write_previews(sim, scene: Scene, out_dir: str | os.PathLike, count: int = 8,
                    frames: int | None = None) -> list[Path]:
     """Stream the scene and save previews of `count` evenly spread frames, plus rest.png (the rest frames)."""
+    if frames is not None:
+        scene = scene.limited(frames)
     sim.check_playable(scene)  # before the directory is made, as write_dataset
     directory = Path(out_dir)
     directory.mkdir(parents=True, exist_ok=True)
-    if frames is not None:
-        scene = scene.limited(frames)
     reference = sim.reference_images()
     wanted = set(preview_indices(len(scene), count))
     written = [_save_rest(directory / "rest.png", reference, sim.sensor)]

@@ -88,10 +88,11 @@ class Simulator:
         return self.particles.positions_m + self.gel.displacements_m(bin_forces_n)
 
     def stream(self, scene: Scene, frames: int | None = None) -> Iterator[Frame]:
-        """The frames of `scene` (or of its first `frames` frames), one at a time (SceneError: check_playable)."""
-        self.check_playable(scene)
+        """The frames of `scene` (or of its first `frames` frames), one at a time (SceneError: check_playable, of
+        those frames: a scene whose later random presses find no room plays its first ones)."""
         if frames is not None:
             scene = scene.limited(frames)
+        self.check_playable(scene)
         return self._frames(scene, bind_effects(scene.effects, scene.effect_context(self.sensor)))
 
     def check_playable(self, scene: Scene) -> None:

@@ -79,6 +79,20 @@ def test_a_scene_that_does_not_fit_the_sensor_leaves_no_directory(sim, tmp_path)
     assert not (tmp_path / "out").exists()
 
 
+def test_the_first_frames_of_a_scene_whose_later_random_presses_find_no_room_are_written(sim, tmp_path):
+    """`generate --frames 2` of multi_contact on a 24.5 mm strip: its random presses (frames 2 on) find no room there,
+    and the whole scene was checked, not the frames asked for (found in review)."""
+    import dataclasses
+
+    strip = dataclasses.replace(sim.sensor, grid=dataclasses.replace(sim.sensor.grid, width_m=24.5e-3))
+    narrow = Simulator(strip)
+    with pytest.raises(SceneError, match="found room for only"):
+        write_dataset(narrow, load_scene("multi_contact"), tmp_path / "all", progress=False)
+    assert not (tmp_path / "all").exists()
+    assert len(open_dataset(write_dataset(narrow, load_scene("multi_contact"), tmp_path / "two", progress=False,
+                                          frames=2), strip)) == 2
+
+
 def _copy_of(written, directory):
     directory.mkdir()
     for f in written.iterdir():
