@@ -141,6 +141,9 @@ class BagReader:
         if not self.path.exists():
             raise BagError(f"bag {self.path} does not exist: give the directory that `tactile-bag record` (or "
                            "`ros2 bag record`) wrote")
+        if self.path.is_dir() and not (self.path / "metadata.yaml").exists():  # rosbags: "Expected metadata file
+            raise BagError(f"bag {self.path} has no metadata.yaml: give the directory that `tactile-bag record` (or "
+                           "`ros2 bag record`) wrote, whole")  # 'DIR' does not exist", naming the directory
         try:
             self._reader = Reader(self.path)
             self._reader.open()
@@ -221,7 +224,8 @@ class BagReader:
                 raise DefinitionMismatchError(
                     f"bag {self.path}: topic {connection.topic} was recorded with another definition of "
                     f"{connection.msgtype} (type hash {connection.digest}) than the installed one ({installed}); read "
-                    "it with the version of the interface package that recorded it, or leave the topic out (--topics)")
+                    "it with the version of the interface package that recorded it, or leave the topic out (play: "
+                    "--topics; eval: --source images, for recorded bundles)")
         self._checked_topics.update(c.topic for c in connections)
 
     def close(self) -> None:

@@ -317,12 +317,14 @@ def test_cli_eval_without_camera_images(tmp_path, write_bag, sensor, sim_frames,
     assert len(err) == 1 and "has no camera images on ['/tactile/cam0/image'" in err[0]
 
 
-@pytest.mark.parametrize("bag", ["missing", "not_a_bag"])
-def test_cli_eval_bad_bag(tmp_path, model_dir, capsys, bag):
+@pytest.mark.parametrize("bag, says", [("missing", "does not exist"), ("not_a_bag", "has no metadata.yaml")])
+def test_cli_eval_bad_bag(tmp_path, model_dir, capsys, bag, says):
+    """A directory without metadata.yaml (its .mcap alone): rosbags' message named the directory as the missing
+    "metadata file" (found by a walkthrough)."""
     (tmp_path / "not_a_bag").mkdir()
     assert main(["eval", str(tmp_path / bag), "--model", str(model_dir), "--backend", "torch"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("tactile-bag eval: error: bag ")
+    assert len(err) == 1 and err[0].startswith(f"tactile-bag eval: error: bag {tmp_path / bag} {says}"), err
 
 
 def test_cli_eval_model_of_another_sensor(sim_bag, model_dir, capsys):

@@ -42,13 +42,23 @@ def stop_signals_raised():
 
     By default a SIGTERM (`kill`, a job scheduler's time limit) ends Python at once: no `finally` block or clean-up
     runs, so a command stopped so left what it had half made behind (an empty --out). Raised as an exception, it
-    unwinds like a Ctrl-C, and the command can say in one line what it leaves."""
+    unwinds like a Ctrl-C, and the command can say in one line what it leaves.
+
+    Raised inside a C extension's call, the StopSignal may come out as another error caused by it: pybind11's
+    TypeError "Unable to convert function return value to a Python type!" from rclpy's deserialisation, onnxruntime's
+    ImportError "initialization failed" from its import (3 of 26 Ctrl-Cs to `tactile-bag eval`, each a traceback; found
+    by a walkthrough). Such an error is raised as its StopSignal again."""
     def raise_stop(number, _frame):
         raise StopSignal(number)
 
     previous = {number: signal.signal(number, raise_stop) for number in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
+    except BaseException as error:
+        stop = _stop_signal_behind(error)
+        if stop is not None and stop is not error:
+            raise stop from error
+        raise
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
@@ -62,6 +72,17 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(INPUT_ERROR_EXIT, f"{self.prog}: error: {one_line(message)}\n")
+
+
+def _stop_signal_behind(error: BaseException) -> StopSignal | None:
+    """The StopSignal that `error` is, or that caused it (however far down its chain of causes), else None."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, StopSignal):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
 
 
 def error_exit(program: str, error: BaseException | str) -> int:

@@ -25,7 +25,8 @@ def main_after_imports(module: str, program: str | None = None):
     word, as `run_node` ends a node stopped while it builds itself; a command with one line on stderr,
     "PROGRAM: stopped by Ctrl-C", and the status a shell gives a command the signal killed (130, 143), as the commands
     end on those signals later (command_line.stop_signals_raised). os._exit: nothing is open yet to close or flush, and
-    no `except` inside an imported library can swallow it. Python's handlers are back in place before `main` runs."""
+    no `except` inside an imported library can swallow it. Python's handlers are back in place before `main` runs; once
+    it has returned, both signals are ignored."""
     def stop(number: int, _frame) -> None:
         if program is not None:
             with contextlib.suppress(OSError):  # stderr closed: the process ends all the same
@@ -38,7 +39,12 @@ def main_after_imports(module: str, program: str | None = None):
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
-    return main()
+    status = main()
+    # Done: a stop while the interpreter tears down torch and rclpy (tenths of a second) ended a command that had
+    # printed its results with status -2 and no word (found by a walkthrough). It is ignored: the process is ending.
+    for number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(number, signal.SIG_IGN)
+    return status
 
 
 def camera_node() -> None:

@@ -16,9 +16,11 @@ from tactile_description.command_line import (
     CLOSED_PIPE_EXIT,
     INPUT_ERROR_EXIT,
     ArgumentParser,
+    StopSignal,
     error_exit,
     number_argument,
     stop_signals_ignored,
+    stop_signals_raised,
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
@@ -144,3 +146,19 @@ def test_a_parser_and_its_subcommands_refuse_arguments_in_one_line(capsys):
         with pytest.raises(SystemExit) as refused:
             parser.parse_args(args)
         assert refused.value.code == INPUT_ERROR_EXIT and capsys.readouterr().err == line + "\n"
+
+
+def test_a_stop_signal_that_a_c_extension_turned_into_another_error_is_raised_as_itself():
+    """pybind11 turns an exception raised inside a call (the StopSignal) into a TypeError caused by it; rclpy's
+    deserialisation did so on a Ctrl-C to `tactile-bag eval`, which then ended in a traceback."""
+    inherited = signal.getsignal(signal.SIGINT)
+    with pytest.raises(StopSignal) as stopped, stop_signals_raised():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)
+        except StopSignal as stop:
+            raise TypeError("Unable to convert function return value to a Python type!") from stop
+    assert stopped.value.number == signal.SIGINT and isinstance(stopped.value.__cause__, TypeError)
+    assert signal.getsignal(signal.SIGINT) is inherited
+    with pytest.raises(ValueError), stop_signals_raised():  # any other error passes as it is
+        raise ValueError("not a stop")

@@ -76,6 +76,29 @@ def test_once_imported_the_main_runs_with_pythons_handlers_and_its_status_is_the
     assert process.communicate(timeout=30)[1] == "" and process.returncode == 7
 
 
+#: A module whose main returns 0 and whose process then takes 1 s to end (as the teardown of torch takes tenths of a
+#: second), saying when that has begun.
+ENDING_MODULE = '''
+import atexit, pathlib, sys, time
+
+def main():
+    atexit.register(lambda: (pathlib.Path(sys.argv[1]).touch(), time.sleep(1.0)))
+    return 0
+'''
+
+
+def test_a_stop_signal_once_the_main_has_returned_is_ignored(tmp_path):
+    """The command has done its work; a Ctrl-C while the process ends gave status -2 and no word."""
+    (tmp_path / "ending_module.py").write_text(ENDING_MODULE)
+    process = run_after_imports(tmp_path, "ending_module", "tactile-fusion")
+    deadline = time.monotonic() + 30
+    while not (tmp_path / "importing").exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    process.send_signal(signal.SIGTERM)
+    assert process.communicate(timeout=30) == ("", "") and process.returncode == 0
+
+
 @pytest.mark.parametrize("script", SCRIPTS)
 def test_every_console_script_imports_its_module_through_main_after_imports(script, monkeypatch):
     """The installed entry point is a function here, and the module it names has the `main` it then runs."""

@@ -166,8 +166,9 @@ class BundleNode(Node):
         """Warn about cameras that fell silent; say when one of those sends again (not at start-up)."""
         lost = sorted(set(self.live_cameras) - set(live))
         if lost:
-            self.get_logger().warning(f"no images from {lost} for {self.camera_timeout_s:.2f} s: bundling "
-                                      f"{list(live)} only")
+            # All silent (a replayed bag ended, the cameras stopped) is no "bundling [] only" (found by a walkthrough)
+            bundling = f"bundling {list(live)} only" if live else "no camera sends: no bundles until one does"
+            self.get_logger().warning(f"no images from {lost} for {self.camera_timeout_s:.2f} s: {bundling}")
         back = sorted(self.lost_cameras & set(live))
         if back:
             self.get_logger().info(f"cameras {back} are back: bundling {list(live)}")

@@ -135,3 +135,16 @@ def test_cameras_at_the_sensor_descriptions_rate_are_not_named(bundler, capfd):
     send(node, [100.0 + k * PERIOD_S + 0.002 * (k % 2) for k in range(12)])  # with jitter
     assert spin_until(node, lambda: len(bundles) >= 10, 10.0)
     assert "frames a second by its stamps" not in capfd.readouterr().err
+
+
+def test_every_camera_falling_silent_is_said_as_such(bundler, capfd):
+    """A replayed bag that ended logged "no images from [every camera] ...: bundling [] only" (found by a
+    walkthrough)."""
+    node, _ = bundler("-p", "camera_timeout_s:=0.5")
+    send(node, [100.0 + k * PERIOD_S for k in range(3)])
+    for camera in CAMERAS:
+        node.last_arrival_s[camera] -= 1.0
+    node.check_cameras()
+    err = capfd.readouterr().err
+    assert node.live_cameras == () and "bundling []" not in err
+    assert f"no images from {sorted(CAMERAS)} for 0.50 s: no camera sends: no bundles until one does" in err
