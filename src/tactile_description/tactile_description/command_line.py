@@ -51,17 +51,30 @@ def stop_signals_raised():
     def raise_stop(number, _frame):
         raise StopSignal(number)
 
-    previous = {number: signal.signal(number, raise_stop) for number in (signal.SIGINT, signal.SIGTERM)}
+    with stop_signals_handled_by(raise_stop):
+        try:
+            yield
+        except BaseException as error:
+            stop = _stop_signal_behind(error)
+            if stop is not None and stop is not error:
+                raise stop from error
+            raise
+
+
+#: Ctrl-C and SIGTERM: how a user or a launcher stops a command or a node.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def stop_signals_handled_by(handler):
+    """Both STOP_SIGNALS handled by `handler` (a function of the signal's number and frame, or signal.SIG_IGN) while the
+    block runs; the handlers before it are back afterwards."""
+    previous = {number: signal.signal(number, handler) for number in STOP_SIGNALS}
     try:
         yield
-    except BaseException as error:
-        stop = _stop_signal_behind(error)
-        if stop is not None and stop is not error:
-            raise stop from error
-        raise
     finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
+        for number, before in previous.items():
+            signal.signal(number, before)
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -167,12 +180,8 @@ def stop_signals_ignored():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {number: signal.signal(number, signal.SIG_IGN) for number in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with stop_signals_handled_by(signal.SIG_IGN):
         yield
-    finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
 
 
 def _stdout_closed() -> bool:
