@@ -97,12 +97,13 @@ def cmd_eval(args) -> int:
     predictor = load_predictor(args.model, args.backend)
     truth_topic = absolute_topic(args.truth_topic) if args.truth_topic else GROUND_TRUTH_TOPIC
     check_fits(predictor, sensor)  # before the warning, which would name the cameras of a model of others
-    warning = sensor_changes_warning(predictor.made_for, sensor)
+    changes = sensor_changes(predictor.made_for, sensor)
+    warning = sensor_changes_warning(changes, sensor)
     if warning:
         print(f"tactile-bag eval: warning: {warning}", file=sys.stderr)
     result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
                           truth_topic if args.truth_topic else None, contact_level_n=args.contact_level)
-    summary = {**result.summary(), "sensor_changes": sensor_changes(predictor.made_for, sensor)}
+    summary = {**result.summary(), "sensor_changes": changes}
     if args.json:
         print(json.dumps(summary))
         return 0

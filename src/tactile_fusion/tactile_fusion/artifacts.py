@@ -103,11 +103,10 @@ def sensor_changes_text(changes: list[str], sensor: SensorDescription) -> str:
             f"{changes_text(changes)} changed since")
 
 
-def sensor_changes_warning(made_for: dict | None, sensor: SensorDescription) -> str:
-    """What to tell a user who runs a model with `sensor` ("" where nothing changed or it is not known). A warning, not
-    a refusal: the estimates may be off, but the user may know that the change does not matter to the images (a value
-    only refined)."""
-    changes = sensor_changes(made_for, sensor)
+def sensor_changes_warning(changes: list[str] | None, sensor: SensorDescription) -> str:
+    """What to tell a user who runs a model with `sensor` of its `sensor_changes` ("" where nothing changed or it is
+    not known). A warning, not a refusal: the estimates may be off, but the user may know that the change does not
+    matter to the images (a value only refined)."""
     if not changes:
         return ""
     return (f"{sensor_changes_text(changes, sensor)}; its estimates may be off: retrain it for this description "

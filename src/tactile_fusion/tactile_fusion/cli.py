@@ -270,7 +270,8 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(model_dir, args.backend, args.precision, args.threads)
     check_model_fits(predictor, sensor)
-    changed = sensor_changes_warning(predictor.made_for, sensor)
+    changes = sensor_changes(predictor.made_for, sensor)
+    changed = sensor_changes_warning(changes, sensor)
     if changed:
         print(f"tactile-fusion eval: warning: {changed}", file=sys.stderr)
     out = _output_dir(args.out) if args.out else None
@@ -292,7 +293,7 @@ def cmd_eval(args) -> int:
     first = next(iter(results.values()))
     report = {"rmse_bin_n": first["rmse_bin_n"], "rmse_total_n": first["rmse_total_n"],
               "model": str(model_dir), "backend": args.backend, "precision": args.precision,
-              "sensor_changes": sensor_changes(predictor.made_for, sensor), "data_sets": results,
+              "sensor_changes": changes, "data_sets": results,
               "hard_cases_left_out": skipped}
     if out:
         write_json(out / "metrics.json", report)

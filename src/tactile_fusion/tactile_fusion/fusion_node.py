@@ -53,7 +53,13 @@ from tactile_conversions.parameters import (
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components
-from tactile_fusion.artifacts import ModelFileError, default_model_dir, sensor_changes_warning, threshold_text
+from tactile_fusion.artifacts import (
+    ModelFileError,
+    default_model_dir,
+    sensor_changes,
+    sensor_changes_warning,
+    threshold_text,
+)
 from tactile_fusion.inference import DEFAULT_THREADS, MAX_THREADS, InputError, check_backend, load_predictor
 from tactile_fusion.live_estimation import (
     MAX_REFERENCE_BUNDLES,
@@ -107,7 +113,7 @@ class FusionNode(Node):
         log_sensor_description(self, self.sensor)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
                                f"the reference from the next {reference_bundles} bundles: do not touch")
-        changed = sensor_changes_warning(self.predictor.made_for, self.sensor)
+        changed = sensor_changes_warning(sensor_changes(self.predictor.made_for, self.sensor), self.sensor)
         if changed:
             self.get_logger().warning(changed)
         left_out = left_out_components(self.predictor.components)

@@ -485,16 +485,17 @@ def test_a_model_names_the_description_it_was_trained_for_and_what_changed_in_it
     for backend in BACKENDS:
         made_for = load_predictor(tmp_path, backend).made_for
         for same in (sensor, dataclasses.replace(sensor, name="renamed"), reordered):
-            assert sensor_changes(made_for, same) == [] and sensor_changes_warning(made_for, same) == ""
+            assert sensor_changes(made_for, same) == []
+            assert sensor_changes_warning(sensor_changes(made_for, same), same) == ""
         assert sensor_changes(made_for, stiffer) == ["gel_layers[particle_layer].youngs_modulus_pa"]
-        assert sensor_changes_warning(made_for, stiffer) == (
+        assert sensor_changes_warning(sensor_changes(made_for, stiffer), stiffer) == (
             "the sensor description stiffer.yaml is not the one the model was trained for: "
             "gel_layers[particle_layer].youngs_modulus_pa changed since; its estimates may be off: retrain it for "
             "this description (tactile-fusion train --sensor FILE), or use the description it was trained with")
     # A model saved without its sensor (as those trained before 2026-11-27) cannot tell: no warning.
     unknown = load_predictor(out).made_for
     assert unknown is None and sensor_changes(unknown, stiffer) is None
-    assert sensor_changes_warning(unknown, stiffer) == ""
+    assert sensor_changes_warning(sensor_changes(unknown, stiffer), stiffer) == ""
 
 
 @pytest.mark.parametrize("entry, problem", [
