@@ -135,7 +135,7 @@ class SimCameraNode(Node):
                 return
             self.playing = True
             self.get_logger().info(f"images subscribed: playing scene {self.scene_name!r} from its first frame")
-        # Every frame of the scene can be made: the simulator checked it at start-up (Simulator.check_playable, random
+        # Every frame of the scene can be made: the simulator checked it at start-up (Scene.check_playable, random
         # presses' room included), where a refusal ends the node in one line.
         frame = next(self.frames, None)
         if frame is None:

@@ -70,7 +70,7 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
                                "replace it with --overwrite (overwrite=True in Python)")
     if frames is not None:
         scene = scene.limited(frames)
-    sim.check_playable(scene)  # before the directory is made: a scene refused leaves none behind
+    stream = sim.stream(scene)  # checks the scene before the directory is made: a refusal leaves none behind
     directory.mkdir(parents=True, exist_ok=True)
     sensor = sim.sensor
     n, c = len(scene), sensor.n_cameras
@@ -91,7 +91,7 @@ def write_dataset(sim, scene: Scene, out_dir: str | os.PathLike, progress: bool 
     times = _reserved_array(directory / "times_s.npy", np.float64, (n,))
     with (directory / "contacts.json.tmp").open("w") as contacts_file:
         contacts_file.write("[\n")
-        for frame in tqdm(sim.stream(scene), total=n, disable=not progress, desc=f"{scene.name} -> {directory}",
+        for frame in tqdm(stream, total=n, disable=not progress, desc=f"{scene.name} -> {directory}",
                           unit="frame"):
             i = frame.index
             images[i] = frame.images

@@ -111,13 +111,13 @@ def write_previews(sim, scene: Scene, out_dir: str | os.PathLike, count: int = 8
     """Stream the scene and save previews of `count` evenly spread frames, plus rest.png (the rest frames)."""
     if frames is not None:
         scene = scene.limited(frames)
-    sim.check_playable(scene)  # before the directory is made, as write_dataset
+    stream = sim.stream(scene)  # checks the scene before the directory is made, as write_dataset
     directory = Path(out_dir)
     directory.mkdir(parents=True, exist_ok=True)
     reference = sim.reference_images()
     wanted = set(preview_indices(len(scene), count))
     written = [_save_rest(directory / "rest.png", reference, sim.sensor)]
-    for frame in sim.stream(scene):
+    for frame in stream:
         if frame.index in wanted:
             written.append(save_preview(directory / f"{scene.name}_{frame.index:06d}.png", frame, reference,
                                         sim.sensor, title=scene.name))

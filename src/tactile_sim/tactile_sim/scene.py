@@ -481,17 +481,19 @@ class Scene:
     def contacts(self, sensor: SensorDescription) -> Iterator[tuple[Contact, ...]]:
         """The contacts of each frame, in order (lazy; one tuple per frame); validates the scene first."""
         self.validate(sensor)
+        for _, frames in self._played_segments(sensor.grid):
+            yield from frames
+
+    def _played_segments(self, grid: BinGrid) -> Iterator[tuple[Segment, Iterator[tuple[Contact, ...]]]]:
+        """Each segment the scene plays, with the contacts of its frames within the frame limit, drawn from its own
+        random stream (module docstring): what contacts() yields and what _check_room draws beforehand. No frame past
+        the limit is made: random presses could fail on one that is never played (found in review)."""
         left = len(self)
         for i, segment in enumerate(self.segments):
             if left <= 0:
                 return
-            # No frame past the limit is made: random presses could fail on one that is never played (found in review).
-            yield from itertools.islice(segment.frames(self._segment_rng(i), sensor.grid), left)
+            yield segment, itertools.islice(segment.frames(np.random.default_rng([self.seed, 0, i]), grid), left)
             left -= segment.n_frames
-
-    def _segment_rng(self, index: int) -> np.random.Generator:
-        """The random stream of segment `index` (module docstring)."""
-        return np.random.default_rng([self.seed, 0, index])
 
     def check_playable(self, sensor: SensorDescription, ground_truth: GroundTruthModel) -> None:
         """SceneError for a scene that `sensor` cannot play with `ground_truth` labelling it, before any frame: what
@@ -504,15 +506,12 @@ class Scene:
     def _check_room(self, grid: BinGrid) -> None:
         """Random presses of several contacts apart find no room only as their frames are made: a data set failed in
         its middle, a live graph's cameras once it ran (found in review). Their contacts (no physics: 0.01 s for
-        multi_contact's 240 frames) are drawn once here, within the scene's frame limit."""
-        left = len(self)
-        for i, segment in enumerate(self.segments):
+        multi_contact's 240 frames) are drawn once here, as contacts() draws them."""
+        for segment, frames in self._played_segments(grid):
             p = segment.params
-            if left > 0 and segment.kind == "random_presses" and p["contacts_per_frame"][1] > 1 and \
-                    p["min_separation_m"] > 0:
-                for _ in itertools.islice(segment.frames(self._segment_rng(i), grid), left):
+            if segment.kind == "random_presses" and p["contacts_per_frame"][1] > 1 and p["min_separation_m"] > 0:
+                for _ in frames:
                     pass
-            left -= segment.n_frames
 
     def validate(self, sensor: SensorDescription) -> None:
         """Check what needs the sensor, with errors naming the file and key: every indenter and depth within the

@@ -88,16 +88,13 @@ class Simulator:
         return self.particles.positions_m + self.gel.displacements_m(bin_forces_n)
 
     def stream(self, scene: Scene, frames: int | None = None) -> Iterator[Frame]:
-        """The frames of `scene` (or of its first `frames` frames), one at a time (SceneError: check_playable, of
-        those frames: a scene whose later random presses find no room plays its first ones)."""
+        """The frames of `scene` (or of its first `frames` frames), one at a time. The scene is checked here, before
+        the first frame (SceneError: Scene.check_playable with this simulator's ground truth, of those frames: a scene
+        whose later random presses find no room plays its first ones)."""
         if frames is not None:
             scene = scene.limited(frames)
-        self.check_playable(scene)
-        return self._frames(scene, bind_effects(scene.effects, scene.effect_context(self.sensor)))
-
-    def check_playable(self, scene: Scene) -> None:
-        """SceneError for a scene this simulator cannot play (Scene.check_playable)."""
         scene.check_playable(self.sensor, self.ground_truth)
+        return self._frames(scene, bind_effects(scene.effects, scene.effect_context(self.sensor)))
 
     def _frames(self, scene: Scene, effects: EffectChain) -> Iterator[Frame]:
         period_s = 1.0 / self.sensor.frame_rate_hz
