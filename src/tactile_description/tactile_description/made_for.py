@@ -50,9 +50,9 @@ def changed_fields(before, now, where: str = "") -> list[str]:
     """The fields whose values differ between two `physical_fields`, as paths such as "cameras[cam1].position_m" or
     "gel_layers[protective_top].youngs_modulus_pa". Cameras are matched by id, in whatever order a description lists
     them (the model matches its inputs by camera id); gel layers by their place in the stack (named by their name
-    where it stayed the same). A key that only one of them has is
-    not compared: a field that a later version adds, with its default, does not make every model trained before it
-    look out of date. Numbers within 1e-9 of their size are equal: the same value converted to SI units another way."""
+    where it stayed the same). A key that only one of them has is not compared: a field that a later version adds,
+    with its default, does not make every model trained before it look out of date. Numbers within 1e-9 of their size
+    are equal: the same value converted to SI units another way."""
     if isinstance(before, dict) and isinstance(now, dict):
         return [change for key in before if key in now
                 for change in changed_fields(before[key], now[key], f"{where}.{key}" if where else key)]
