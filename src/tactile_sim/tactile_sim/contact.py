@@ -29,7 +29,7 @@ from typing import Protocol
 
 import numpy as np
 
-from tactile_description import SensorDescription
+from tactile_description import BinGrid, SensorDescription
 from tactile_description.value_checks import is_number, is_whole_number
 
 from .elastic import CompliantLayer, compliant_layer
@@ -273,6 +273,20 @@ def contact_radius_m(shape: Sphere | FlatPunch, depth_m: float) -> float:
     return shape.radius_m
 
 
+def reach_problem(grid: BinGrid, x_m: float, y_m: float, shape: Sphere | FlatPunch, depth_m: float) -> str | None:
+    """Why a contact centred at (x_m, y_m) presses nothing on `grid`'s surface at `depth_m`: its centre lies beside the
+    surface by at least the radius its contact reaches (None where it touches). Scenes and `tactile-sim press` refuse
+    such a contact: it gives no force, and a user who typed millimetres of another sensor got 0 N without a word."""
+    off_x = max(-x_m, 0.0, x_m - grid.width_m)
+    off_y = max(-y_m, 0.0, y_m - grid.length_m)
+    off, reach = math.hypot(off_x, off_y), contact_radius_m(shape, depth_m)
+    if off > 0 and off >= reach:
+        return (f"a press at ({x_m * 1e3:g}, {y_m * 1e3:g}) mm is {off * 1e3:.3g} mm off the {grid.width_m * 1e3:g} "
+                f"x {grid.length_m * 1e3:g} mm surface, beyond the {reach * 1e3:.3g} mm its contact reaches at its "
+                "deepest: it would press nothing")
+    return None
+
+
 def normal_load(layer: CompliantLayer, shape: Sphere | FlatPunch, depth_m: float) -> AxisymmetricLoad:
     """Hertz / Sneddon normal load on the layer, stiffened for its finite thickness.
 
@@ -429,11 +443,14 @@ def contact_record(contact: Contact) -> dict:
 
 
 def press_report(sensor: SensorDescription, contact: Contact, model: GroundTruthModel) -> dict:
-    """The JSON object `tactile-sim press --json` prints: the bin forces of one contact and their total. A shear the
-    scenes refuse (shear_problem) is refused here too (ValueError)."""
+    """The JSON object `tactile-sim press --json` prints: the bin forces of one contact and their total. A shear or a
+    place the scenes refuse (shear_problem, reach_problem) is refused here too (ValueError)."""
     problem = shear_problem(sensor, float(np.hypot(*contact.shear_m)))
     if problem is not None:
         raise ValueError(f"Contact: {problem}")
+    problem = reach_problem(sensor.grid, contact.x_m, contact.y_m, contact.shape, contact.depth_m)
+    if problem is not None:
+        raise ValueError(f"{problem} (--x-mm and --y-mm are millimetres from the surface's corner)")
     forces = model.bin_forces([contact])
     return {
         "sensor": sensor.name,

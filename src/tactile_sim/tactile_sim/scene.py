@@ -39,6 +39,7 @@ from tactile_sim.contact import (
     Sphere,
     contact_radius_m,
     press_problem,
+    reach_problem,
     shear_problem,
 )
 from tactile_sim.effects import MAX_EFFECT_FRAME, EffectContext, EffectSpec, SceneError, parse_effect
@@ -388,19 +389,14 @@ def _check_random_presses(p, where: str, grid: BinGrid) -> None:
 
 
 def _check_touches(place: Place, shape: Sphere | FlatPunch, depth_m: float, where: str, grid: BinGrid) -> None:
-    """A contact must touch the surface at its deepest: one farther off presses nothing, in every frame. Scenes are in
-    mm of the reference sensor's surface, and on a smaller one (a 24.5 mm strip) most of the demo scene's presses
-    were off it, accepted without a word, with no force at all (found in review)."""
-    x_m, y_m = place.metres(grid)
-    off_x = max(-x_m, 0.0, x_m - grid.width_m)
-    off_y = max(-y_m, 0.0, y_m - grid.length_m)
-    off, reach = math.hypot(off_x, off_y), contact_radius_m(shape, depth_m)  # scenes press spheres and punches
-    if off > 0 and off >= reach:
+    """A contact must touch the surface at its deepest (reach_problem). Scenes are in mm of the reference sensor's
+    surface, and on a smaller one (a 24.5 mm strip) most of the demo scene's presses were off it, accepted without a
+    word, with no force at all (found in review)."""
+    problem = reach_problem(grid, *place.metres(grid), shape, depth_m)
+    if problem is not None:
         why = ("fractions of the surface's width and length beyond 0 to 1 lie beside it" if place.fraction else
                "positions are in mm from the surface's corner; a scene made for another sensor may not fit this one")
-        raise SceneError(f"{where}: a press at ({x_m / MM:g}, {y_m / MM:g}) mm is {off / MM:.3g} mm off the "
-                         f"{grid.width_m / MM:g} x {grid.length_m / MM:g} mm surface, beyond the {reach / MM:.3g} mm "
-                         f"its contact reaches at its deepest: it would press nothing ({why})")
+        raise SceneError(f"{where}: {problem} ({why})")
 
 
 def _check_press(p, where: str, grid: BinGrid) -> None:

@@ -179,6 +179,8 @@ def test_unusable_paths_unsafe_names_and_huge_counts_get_one_line_and_status_2(t
         "press", "--x-mm", "nan", "--y-mm", "25", "--depth-mm", "1")
     assert "--radius-mm must be a finite number of millimetres > 0, got -1.0" in refused(
         "press", "--x-mm", "24", "--y-mm", "25", "--depth-mm", "1", "--radius-mm", "-1")
+    assert "it would press nothing (--x-mm and --y-mm are millimetres from the surface's corner)" in refused(
+        "press", "--x-mm", "60", "--y-mm", "25", "--depth-mm", "1")
     crowded = tmp_path / "crowded.yaml"  # an OverflowError checking that the contacts fit, a directory left behind
     crowded.write_text("name: crowded\nseed: 1\ntimeline: [{random_presses: {frames: 3, depth_mm: 1, "
                        "min_separation_mm: 1.0e+199}}]\n")

@@ -262,6 +262,19 @@ def test_press_report_matches_bin_forces(sensor, model):
         press_contact(20.0, 30.0, 0.5, shape="cube")
 
 
+def test_press_report_refuses_a_press_beside_the_surface(sensor, model):
+    # a sphere of 5 mm radius 1 mm deep reaches sqrt(5 * 1) = 2.24 mm: 2 mm beside the 49 mm edge it still presses
+    width_mm = sensor.grid.width_m * 1e3
+    grazing = press_report(sensor, press_contact(width_mm + 2.0, 25.0, 1.0), model)
+    assert grazing["total_force_n"][2] > 0 and grazing["loaded_bins"] > 0
+    # it reported 0 N over 0 bins, status 0, for a press 11 mm beside it (found in review)
+    with pytest.raises(ValueError, match=r"a press at \(60, 25\) mm is 11 mm off the 49 x 51 mm surface, beyond the "
+                                         r"2.24 mm its contact reaches at its deepest: it would press nothing"):
+        press_report(sensor, press_contact(60.0, 25.0, 1.0), model)
+    with pytest.raises(ValueError, match="is 3 mm off the 49 x 51 mm surface"):
+        press_report(sensor, press_contact(-3.0, 25.0, 1.0, shape="punch", radius_mm=2.0), model)
+
+
 def test_unknown_model_name_is_rejected(sensor):
     with pytest.raises(ValueError, match="'analytic' or 'numerical'"):
         ground_truth_model(sensor, "fem")
