@@ -539,7 +539,9 @@ class Scene:
             if problem:
                 raise SceneError(f"{problem}: the {ground_truth.name} ground-truth model computes each contact alone "
                                  "and adds their forces, counting the overlap twice; move them apart, or label the "
-                                 "scene with the numerical model (tactile-sim generate or render --model numerical)")
+                                 "scene with the numerical model (tactile-sim generate or render --model numerical; "
+                                 "the simulated camera node and training from a scene have the "
+                                 "analytic one only)")
 
     def effect_context(self, sensor: SensorDescription) -> EffectContext:
         out = sensor.cameras[0].output_size

@@ -46,7 +46,8 @@ def test_contacts_that_may_overlap_are_refused_where_the_ground_truth_would_coun
             "overlap.yaml.timeline[0].contacts.contacts[0] and contacts[1] overlap: 3 mm apart, closer than their "
             "contact radii together (4.47 mm): the analytic ground-truth model computes each contact alone and adds "
             "their forces, counting the overlap twice; move them apart, or label the scene with the numerical model "
-            "(tactile-sim generate or render --model numerical)")):
+            "(tactile-sim generate or render --model numerical; the simulated camera node and training "
+            "from a scene have the analytic one only)")):
         sim.stream(scene)
     with pytest.raises(SceneError, match="counting the overlap twice"):  # before any file is written
         write_dataset(sim, scene, tmp_path / "data", progress=False)
