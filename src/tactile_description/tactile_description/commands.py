@@ -3,9 +3,9 @@
 Their modules take up to 1.6 s to import (torch, rclpy, OpenCV). A Ctrl-C meanwhile ended a command or node with a
 KeyboardInterrupt traceback, and a SIGTERM (`ros2 launch` escalating, `kill`) ended it at once with status -15, before
 any of its own handling of those signals was in place. Each function here imports its module with both signals
-ending the process quietly (`main_after_imports`), then runs its `main`. This module itself imports little (numpy,
-through tactile_description), so that what remains of the window is Python's start and the console script's lookup of
-its entry point: about 0.1 s on an idle machine, up to 0.2 s on a loaded one.
+ending the process quietly (`main_after_imports`), then runs its `main`. This module itself imports little (not
+numpy: the package imports its sensor module on first use), so that what remains of the window is Python's start and
+the console script's lookup of its entry point: 0.06-0.09 s on a loaded machine.
 """
 
 from __future__ import annotations
