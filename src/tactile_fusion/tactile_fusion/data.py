@@ -294,11 +294,18 @@ def simulate_splits(sensor: SensorDescription, scene: Scene, splits: dict[str, n
     """Stream `scene` through the simulator once and keep the frames at each split's indices in a FrameSet of its
     own: {name: frames}. The streamed frames go straight into their split, so training holds a scene once, not as a
     whole and again as copies of its parts."""
-    sim = Simulator(sensor)
-    kept = {name: _empty_frames(sensor, scene, sim.reference_images(), len(idx)) for name, idx in splits.items()}
     slots = {}  # frame index -> (split name, position in that split)
     for name, idx in splits.items():
-        slots.update((int(frame), (name, slot)) for slot, frame in enumerate(np.asarray(idx)))
+        for slot, frame in enumerate(np.asarray(idx).tolist()):
+            # A frame past the scene's end, or kept twice, left its place in the split unfilled: np.empty's NaN and
+            # Inf forces (found in review).
+            if not (is_whole_number(frame, low=0) and frame < len(scene)) or frame in slots:
+                raise ValueError(f"simulate_splits: split {name!r} holds frame {frame!r}, which is "
+                                 f"{'kept twice' if frame in slots else 'not a frame'} of the {len(scene)}-frame scene "
+                                 f"{scene.name!r}: each index must be a whole number in [0, {len(scene)}), once")
+            slots[int(frame)] = (name, slot)
+    sim = Simulator(sensor)
+    kept = {name: _empty_frames(sensor, scene, sim.reference_images(), len(idx)) for name, idx in splits.items()}
     last = max(slots) + 1 if slots else 0
     stream = sim.stream(scene, frames=last) if last else iter(())
     for frame in tqdm(stream, total=last, desc=f"simulate {scene.name}", unit="frame", disable=not progress):

@@ -40,8 +40,8 @@ def fit_fz_threshold(model: ForceFusionNet, val) -> dict:
     Returns {"fz_threshold_n": the threshold set, "val_rmse_bin_fz_n" and "val_rmse_total_fz_n": {candidate in
     newtons ("none" for no threshold): validation RMSE}}.
     """
-    model.fz_threshold_n = None
     if "fz" not in model.components:
+        model.fz_threshold_n = None
         return {"fz_threshold_n": None, "val_rmse_bin_fz_n": {}, "val_rmse_total_fz_n": {}}
     predicted, true = _fz_n(model, val)
     scale = float(model.force_scale_n[FZ])
@@ -95,11 +95,13 @@ def _fz_n(model: ForceFusionNet, source, batch_size: int = 256) -> tuple[np.ndar
     model.eval()
     threshold, model.fz_threshold_n = model.fz_threshold_n, None
     predicted, true = [], []
-    for start in range(0, len(source), batch_size):
-        indices = np.arange(start, min(start + batch_size, len(source)))
-        predicted.append(model.to_newtons(source.predict(model, indices))[..., FZ].flatten(1).double())
-        true.append(source.forces_n(indices)[..., FZ].flatten(1).double())
-    model.fz_threshold_n = threshold
+    try:  # the model keeps its threshold also when a batch fails, or a stop signal arrives
+        for start in range(0, len(source), batch_size):
+            indices = np.arange(start, min(start + batch_size, len(source)))
+            predicted.append(model.to_newtons(source.predict(model, indices))[..., FZ].flatten(1).double())
+            true.append(source.forces_n(indices)[..., FZ].flatten(1).double())
+    finally:
+        model.fz_threshold_n = threshold
     return torch.cat(predicted).numpy(), torch.cat(true).numpy()
 
 

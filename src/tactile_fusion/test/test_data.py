@@ -106,6 +106,18 @@ def test_splits_are_simulated_in_one_stream_and_equal_the_split_of_the_whole(sen
         np.testing.assert_array_equal(trained_on[name].camera_ok, part.camera_ok)
 
 
+def test_splits_refuse_frames_past_the_scene_or_kept_twice(sensor):
+    """Both left a place of the split unfilled: NaN and Inf forces from np.empty (found in review)."""
+    scene = load_scene("paper_grid", sensor).limited(3)
+    with pytest.raises(ValueError, match=r"split 'a' holds frame 7, which is not a frame of the 3-frame scene "
+                                         r"'paper_grid': each index must be a whole number in \[0, 3\), once"):
+        simulate_splits(sensor, scene, {"a": np.array([0, 7])})
+    with pytest.raises(ValueError, match="split 'b' holds frame 1, which is kept twice"):
+        simulate_splits(sensor, scene, {"a": np.array([1]), "b": np.array([1])})
+    with pytest.raises(ValueError, match="frame -1, which is not a frame"):
+        simulate_frames(sensor, scene, np.array([-1]))
+
+
 def test_further_draws_are_the_scene_with_the_next_seeds_in_chunks(sensor, monkeypatch):
     scene = load_scene("paper_grid", sensor).limited(130)  # 120 frames at rest, then 10 presses
     monkeypatch.setattr(data, "DRAW_CHUNK_FRAMES", 50)

@@ -769,6 +769,21 @@ def test_no_fz_threshold_when_none_beats_the_model_as_it_is(tiny_config, frames)
                                                                  "val_rmse_total_fz_n": {}}
 
 
+def test_a_threshold_fit_that_fails_leaves_the_models_threshold(tiny_config, frames):
+    """It was set to None before the validation frames went through the model, and stayed None (found in review)."""
+    model = constant_fz_model(tiny_config, frames, 0.0038)
+    model.fz_threshold_n = 0.005
+    source = images_of(model, frames)
+
+    def broken(*_):
+        raise OSError("a disk error while the validation frames are read")
+
+    source.predict = broken
+    with pytest.raises(OSError, match="a disk error"):
+        fit_fz_threshold(model, source)
+    assert model.fz_threshold_n == 0.005
+
+
 def fitted_with_threshold(frames, tiny_config, threshold_n: float, ridge: float = 1e-9):
     """(A model whose fusion layer is the plain least-squares fit on the training frames, with an Fz threshold
     set; the training and validation frames; their cached sources)."""
