@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tactile_description.value_checks import is_whole_number
 from tactile_fusion.artifacts import (
     SENSOR_KEY,
     ModelFileError,
@@ -247,6 +248,10 @@ def load_predictor(model_dir: str | Path | None = None, backend: str = "onnxrunt
     other nodes need the remaining cores.
     """
     check_backend(backend, precision)
+    if not (threads is None or is_whole_number(threads) and threads <= MAX_THREADS):
+        # torch refused 0 with its own RuntimeError, and ONNX Runtime took -1 for all cores (found in review)
+        raise ValueError(f"threads must be a whole number from 1 to {MAX_THREADS}, or None for the backend's "
+                         f"default, got {threads!r}")
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
     description = read_model_json(model_dir)
     if backend == "torch":

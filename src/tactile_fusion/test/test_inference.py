@@ -263,6 +263,11 @@ def test_missing_model_and_unknown_backend_are_explained(tmp_path, model_dir):
         load_predictor(out, "torch", "int8")
     with pytest.raises(ValueError, match="backend must be one of"):
         load_predictor(out, "tensorrt")
+    # ONNX Runtime took -1 for all cores; torch refused 0 with its own RuntimeError (found in review)
+    for backend, threads in (("onnxruntime", -1), ("torch", 0), ("onnxruntime", 1025), ("torch", 1.5)):
+        with pytest.raises(ValueError, match=f"threads must be a whole number from 1 to 1024, or None for the "
+                                             f"backend's default, got {threads}"):
+            load_predictor(out, backend, "fp32", threads)
 
 
 def test_a_model_of_fz_alone_exports_and_runs_in_every_backend_and_precision(model_dir, tmp_path, fz_only_copy):
