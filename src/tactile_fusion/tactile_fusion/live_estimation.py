@@ -235,7 +235,10 @@ class ReferenceMatch:
         return changed
 
     def level(self, camera: int) -> float:
-        """The median of the camera's last checks (grey levels)."""
+        """The median of the camera's last checks (grey levels); ValueError before its first (numpy's median of
+        none is NaN)."""
+        if not self._levels[camera]:
+            raise ValueError(f"ReferenceMatch.level: camera {camera} has not been checked yet")
         return float(np.median(self._levels[camera]))
 
 

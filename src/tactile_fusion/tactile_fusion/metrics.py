@@ -71,10 +71,10 @@ def metrics_table(rows: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def centre_of_pressure(fz_n: np.ndarray, bin_centers_m: np.ndarray) -> np.ndarray:
+def _centre_of_pressure(fz_n: np.ndarray, bin_centers_m: np.ndarray) -> np.ndarray:
     """(N, 2) Fz-weighted mean (x, y) in metres of (N, rows, cols) Fz maps, over the bins pressed (Fz > 0: an
-    estimate's negative bins are not a pull, which the gel cannot feel). NaN for a frame without any; callers take
-    frames that carry load."""
+    estimate's negative bins are not a pull, which the gel cannot feel). NaN for a frame without any: private, for
+    contact_metrics, which takes only frames that carry load."""
     pressed = np.clip(np.asarray(fz_n, dtype=np.float64), 0.0, None)
     load = pressed.sum(axis=(1, 2))
     weighted = np.einsum("nrc,rcd->nd", pressed, np.asarray(bin_centers_m, dtype=np.float64))
@@ -103,8 +103,8 @@ def contact_metrics(predicted_n: np.ndarray, true_n: np.ndarray, bin_centers_m: 
     true_load = true_fz.sum(axis=(1, 2))
     reported = predicted_fz.sum(axis=(1, 2)) >= contact_level_n
     unloaded = true_load <= 0.0
-    offset_mm = 1e3 * np.linalg.norm(centre_of_pressure(predicted_fz, bin_centers_m)
-                                     - centre_of_pressure(true_fz, bin_centers_m), axis=1)
+    offset_mm = 1e3 * np.linalg.norm(_centre_of_pressure(predicted_fz, bin_centers_m)
+                                     - _centre_of_pressure(true_fz, bin_centers_m), axis=1)
     bands = []
     for low, high in zip(LOAD_BAND_EDGES_N[:-1], LOAD_BAND_EDGES_N[1:], strict=True):
         in_band = (true_load > low) & (true_load <= high)

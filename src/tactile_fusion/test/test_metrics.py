@@ -6,7 +6,7 @@ import pytest
 from tactile_fusion.metrics import (
     CONTACT_LEVEL_N,
     LOAD_BAND_EDGES_N,
-    centre_of_pressure,
+    _centre_of_pressure,
     contact_metrics,
     contact_table,
     detection_limit,
@@ -114,7 +114,7 @@ def test_detection_limit_is_given_only_where_the_data_show_it():
 
 
 def test_centre_of_pressure_of_a_frame_without_load_is_nan_and_a_pull_does_not_count():
-    centre = centre_of_pressure(_fz_frames({}, {(0, 3): -0.5, (2, 0): 0.1})[..., 2], BIN_CENTERS_M)
+    centre = _centre_of_pressure(_fz_frames({}, {(0, 3): -0.5, (2, 0): 0.1})[..., 2], BIN_CENTERS_M)
     assert np.isnan(centre[0]).all()
     np.testing.assert_allclose(centre[1], [1e-3, 5e-3])
 
