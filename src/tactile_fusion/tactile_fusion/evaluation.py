@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
-from tactile_fusion.camera_out import with_cameras_at_rest
 from tactile_fusion.data import FrameSet
-from tactile_fusion.inference import ForcePredictor
+from tactile_fusion.inference import ForcePredictor, TorchPredictor
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ForceFusionNet
 
@@ -31,14 +29,7 @@ def evaluate(predictor: ForcePredictor, frames: FrameSet, progress: bool = False
     return force_metrics(predicted, frames.bin_forces_n), predicted
 
 
-@torch.no_grad()
-def predict_torch(model: ForceFusionNet, frames: FrameSet, batch_size: int = 32) -> np.ndarray:
-    """(N, rows, cols, 3) newtons from the torch model (evaluation mode); cameras flagged not ok shown at rest."""
-    model.eval()
-    reference = np.asarray(frames.reference)
-    out = []
-    for i in range(0, len(frames), batch_size):
-        images = with_cameras_at_rest(np.asarray(frames.images[i:i + batch_size]), reference,
-                                      frames.camera_ok[i:i + batch_size])
-        out.append(model(torch.from_numpy(images), torch.from_numpy(reference)).numpy())
-    return np.concatenate(out)
+def predict_torch(model: ForceFusionNet, frames: FrameSet) -> np.ndarray:
+    """(N, rows, cols, 3) newtons from the torch model (set to evaluation mode) in fp32, as `predict_frames` with its
+    predictor: cameras flagged not ok shown at rest, frames of cameras in another order put into the model's."""
+    return predict_frames(TorchPredictor(model, threads=None), frames)
