@@ -83,7 +83,7 @@ def trend_line_mn(trend: dict, fractions: np.ndarray, scale: float = 1.0) -> tup
 def plot_recalibration(sweep: dict, path: str | Path) -> Path:
     """Left: test errors against the fraction of data used for recalibration, with the study's least-squares trend
     lines and the fully trained model's error; right: wall time of full training against recalibration, titled with
-    the study's speed-up (`sweep`: the report study.recalibration_study writes)."""
+    the study's speed-up (`sweep`: the report study.run_recalibration_study writes)."""
     fractions = np.array([run["fraction"] for run in sweep["recalibration"]])
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 5), constrained_layout=True)
     for key, label, colour in (("rmse_bin_n", "per-bin Fz RMSE", "tab:blue"),

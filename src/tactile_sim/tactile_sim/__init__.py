@@ -1,5 +1,6 @@
 """The simulated tactile sensor: contact mechanics, gel, particles, cameras and scene effects (no ROS import).
 
+    from tactile_description import load_sensor
     from tactile_sim import Simulator, load_scene, open_dataset, write_dataset
     sim = Simulator(load_sensor())
     for frame in sim.stream(load_scene("paper_grid")): ...

@@ -472,8 +472,8 @@ def reference_press(sensor: SensorDescription) -> Contact:
 def benchmark_models(sensor: SensorDescription, repeats: int = 21, numerical_repeats: int = 5) -> dict:
     """Median cost (ms per frame) of each ground-truth model on the reference press and on a sheared press.
 
-    Each model reports its median over `repeats` runs (after a warm-up that fills caches), the total force it
-    found, and its cost relative to the analytic model measured in the same run.
+    Each model reports its median over `repeats` runs (the numerical model's over `numerical_repeats`; after a warm-up
+    that fills caches), the total force it found, and its cost relative to the analytic model measured in the same run.
     """
     press = reference_press(sensor)
     sheared = Contact(press.x_m, press.y_m, press.depth_m, press.shape, shear_m=(2e-4, 1e-4), friction=0.8)

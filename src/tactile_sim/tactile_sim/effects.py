@@ -259,7 +259,8 @@ class _LedFlicker(_Gain):
 
 @dataclass(frozen=True)
 class ExposureSaturation(EffectSpec):
-    """Over-exposure: the image is multiplied by `gain` (> 1), so bright particles clip at 255."""
+    """Over-exposure: the image is multiplied by `gain` (scenes take (0, 100]; above 1 bright particles clip at 255,
+    below 1 it is an under-exposure)."""
 
     name: ClassVar[str] = "exposure_saturation"
     stage: ClassVar[int] = LIGHT
@@ -444,7 +445,7 @@ class EffectChain:
 
 
 def bind_effects(specs: Sequence[EffectSpec], ctx: EffectContext) -> EffectChain:
-    """Bind each spec to the stream; effect i draws its random numbers from its own stream seeded (seed, i)."""
+    """Bind each spec to the stream; effect i draws its random numbers from its own stream seeded [seed, 1, i]."""
     bound = [(spec.stage, i, spec.bind(ctx, np.random.default_rng([ctx.seed, 1, i]))) for i, spec in enumerate(specs)]
     bound.sort(key=lambda item: (item[0], item[1]))
     chain = EffectChain()
