@@ -245,6 +245,13 @@ def difference_images(images: torch.Tensor, reference: torch.Tensor) -> torch.Te
     return torch.where(unsaturated, difference, torch.clamp(difference, min=0.0))
 
 
+def camera_batch(difference: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) difference images -> (B * C, 1, H, W), frame-major: every camera of every frame as one batch of
+    the CNN they share."""
+    b, c, h, w = difference.shape
+    return difference.reshape(b * c, 1, h, w)
+
+
 class ForceFusionNet(nn.Module):
     """Images of all cameras -> bin forces in newtons.
 
@@ -303,8 +310,7 @@ class ForceFusionNet(nn.Module):
 
     def forward_normalised(self, difference: torch.Tensor) -> torch.Tensor:
         """(B, C, H, W) float difference images (see `difference_images`) -> (B, rows, cols, 3) normalised."""
-        b, c, h, w = difference.shape
-        return self.fuse(self.cnn(difference.reshape(b * c, 1, h, w)))
+        return self.fuse(self.cnn(camera_batch(difference)))
 
     def to_newtons(self, normalised: torch.Tensor) -> torch.Tensor:
         """(B, rows, cols, 3) normalised forces of any float type -> float32 newtons, Fz soft-thresholded.

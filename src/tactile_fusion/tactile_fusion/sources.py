@@ -25,7 +25,7 @@ from tactile_fusion.camera_out import with_cameras_at_rest
 from tactile_fusion.data import FrameSet
 from tactile_fusion.export import onnx_bytes
 from tactile_fusion.inference import onnx_session
-from tactile_fusion.model import ForceFusionNet, difference_images
+from tactile_fusion.model import ForceFusionNet, camera_batch, difference_images
 from tactile_sim.effects import defocus, misalign
 
 #: Where a CachedSource cuts the network: after the conv trunk, or after the first fully connected layer.
@@ -52,9 +52,7 @@ class ImageSource:
         picked = np.sort(indices)
         images = with_cameras_at_rest(np.asarray(self.frames.images[picked]), self.frames.reference,
                                       self.frames.camera_ok[picked])
-        difference = difference_images(torch.from_numpy(images), self.reference)
-        b, c, h, w = difference.shape
-        return model.cnn(difference.reshape(b * c, 1, h, w))
+        return model.cnn(camera_batch(difference_images(torch.from_numpy(images), self.reference)))
 
     def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
         return model.fuse(self.features_at(model, indices))
@@ -81,12 +79,10 @@ class FrontPart(nn.Module):
         self.model, self.cut = model, cut
 
     def forward(self, images: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-        difference = difference_images(images, reference)
-        b, c, h, w = difference.shape
-        x = self.model.cnn.conv_features(difference.reshape(b * c, 1, h, w))
+        x = self.model.cnn.conv_features(camera_batch(difference_images(images, reference)))
         if self.cut == "hidden":
             x = self.model.cnn.first_layer(x)
-        return x.reshape(b, c, -1)
+        return x.reshape(images.shape[0], images.shape[1], -1)
 
 
 class CachedSource:
