@@ -24,12 +24,15 @@ from tactile_description.command_line import (
     stops_quietly_on_closed_pipe,
     whole_number_argument,
 )
-from tactile_sim.contact import ground_truth_model, press_contact, press_report
+from tactile_sim.contact import GROUND_TRUTH_MODELS, ground_truth_model, press_contact, press_report
 from tactile_sim.dataset import DatasetError, write_dataset
 from tactile_sim.effects import SceneError
 from tactile_sim.scene import MAX_FRAMES, load_scene
 
-MODELS = ("analytic", "numerical")
+
+def _model_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", choices=GROUND_TRUTH_MODELS, default=GROUND_TRUTH_MODELS[0],
+                        help="ground-truth model")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,14 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
     press.add_argument("--shear-x-mm", type=float, default=0.0, help="tangential displacement along x (mm)")
     press.add_argument("--shear-y-mm", type=float, default=0.0, help="tangential displacement along y (mm)")
     press.add_argument("--friction", type=float, default=1.0, help="Coulomb friction coefficient")
-    press.add_argument("--model", choices=MODELS, default="analytic", help="ground-truth model")
+    _model_option(press)
     press.add_argument("--json", action="store_true", help="print the full report as JSON")
 
     generate = commands.add_parser("generate", parents=[common], help="write a data set of a scene")
     generate.add_argument("--scene", default="paper_grid", help="scene file or installed scene name")
     generate.add_argument("--out", required=True, help="output directory (new or empty, or see --overwrite)")
     generate.add_argument("--frames", type=frames, help="only the first N frames")
-    generate.add_argument("--model", choices=MODELS, default="analytic", help="ground-truth model")
+    _model_option(generate)
     generate.add_argument("--overwrite", action="store_true",
                           help="replace the data set's files in an --out that holds one, complete or not; its other "
                           "files stay (refused for a non-empty --out without a data set)")
@@ -69,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--out", required=True, help="output directory")
     render.add_argument("--frames", type=frames, help="only the first N frames of the scene")
     render.add_argument("--count", type=previews, default=8, help="previews, spread evenly (default 8)")
-    render.add_argument("--model", choices=MODELS, default="analytic", help="ground-truth model")
+    _model_option(render)
 
     bench = commands.add_parser("bench", parents=[common], help="speed of the simulator")
     bench.add_argument("--scene", default="paper_grid", help="scene whose presses are timed (default paper_grid)")

@@ -391,7 +391,11 @@ class AnalyticContactModel:
             out[1::3] += np.bincount(flat, weights=ft * direction[1], minlength=size)
 
 
-def ground_truth_model(sensor: SensorDescription, name: str = "analytic") -> GroundTruthModel:
+#: The ground-truth models by name; the first is the default (Simulator's and the commands').
+GROUND_TRUTH_MODELS = ("analytic", "numerical")
+
+
+def ground_truth_model(sensor: SensorDescription, name: str = GROUND_TRUTH_MODELS[0]) -> GroundTruthModel:
     """The ground-truth model called `name`: "analytic" (default, fast) or "numerical" (any height map)."""
     if name == "analytic":
         return AnalyticContactModel(sensor)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactile_description import SensorDescription, load_sensor
-from tactile_sim.contact import Contact, ground_truth_model
+from tactile_sim.contact import GROUND_TRUTH_MODELS, Contact, ground_truth_model
 from tactile_sim.effects import EffectChain, bind_effects
 from tactile_sim.elastic import GelDisplacement
 from tactile_sim.particles import ParticleField, generate_particles
@@ -50,7 +50,7 @@ class Simulator:
     Building it costs about a second (particle kernels, rest images); frames are then cheap.
     """
 
-    def __init__(self, sensor: SensorDescription | None = None, ground_truth: str = "analytic",
+    def __init__(self, sensor: SensorDescription | None = None, ground_truth: str = GROUND_TRUTH_MODELS[0],
                  optics: Optics | None = None):
         self.sensor = sensor if sensor is not None else load_sensor()
         self.particles: ParticleField = generate_particles(self.sensor)
