@@ -165,10 +165,9 @@ def _further_draws(args, sensor):
 
 
 def cmd_train(args) -> int:
-    from tactile_fusion.pipeline import check_resumable, scene_source, train_and_export, training_splits
+    from tactile_fusion.pipeline import check_fresh, check_resumable, scene_source, train_and_export, training_splits
 
-    if args.resume:
-        check_resumable(args.out)
+    (check_resumable if args.resume else check_fresh)(args.out)
     _threads(args)
     sensor = load_sensor(args.sensor)
     args.image_size = _image_size(sensor, args)

@@ -360,6 +360,16 @@ def _held_out_picks(record: Path, data: dict, data_name: str, source: FrameSet |
                          "--dataset), or retrain the model on the data as it is now")
 
 
+def check_fresh(out_dir: str | Path) -> None:
+    """Refuse to train from scratch in a directory that holds the checkpoints of an interrupted training
+    (ModelFileError): the new training overwrote the end-to-end checkpoint without a word and left the head phases'
+    beside it, of the other training, which a later --resume then refused (found by a walkthrough)."""
+    checkpoints = sorted(p.name for p in Path(out_dir).glob(CHECKPOINTS))
+    if checkpoints:
+        raise ModelFileError(f"{out_dir} holds the checkpoints of an interrupted training ({', '.join(checkpoints)}): "
+                             "continue it with --resume, delete them to train from scratch, or choose another --out")
+
+
 def check_resumable(out_dir: str | Path) -> None:
     """Refuse to resume training in a model directory whose training finished (ModelFileError): it holds a model and
     no checkpoint (they are deleted when training completes), and resuming there would train a new model from scratch

@@ -722,6 +722,19 @@ def test_resuming_a_finished_model_is_refused_and_leaves_it_as_it_is(tiny_model,
     assert {f.name: file_sha256(f) for f in finished.iterdir()} == before
 
 
+def test_training_from_scratch_over_the_checkpoints_of_an_interrupted_one_is_refused(tmp_path, capsys):
+    """Without --resume the new training overwrote the end-to-end checkpoint and left the head phases' of the other
+    training beside it, which a later --resume refused (found by a walkthrough)."""
+    out = tmp_path / "model"
+    out.mkdir()
+    (out / "checkpoint_head.pt").write_bytes(b"the head phase of an interrupted training")
+    message = refusal(capsys, "train", "--out", out, "--frames", "30", "--epochs", "1", "--head-epochs", "1", *TINY)
+    assert message == (f"tactile-fusion train: error: {out} holds the checkpoints of an interrupted training "
+                       "(checkpoint_head.pt): continue it with --resume, delete them to train from scratch, or "
+                       "choose another --out")
+    assert [p.name for p in out.iterdir()] == ["checkpoint_head.pt"]
+
+
 def test_a_model_that_outputs_inf_is_an_error_line_not_a_traceback(tiny_model, tmp_path, capsys):
     import torch
 
