@@ -183,6 +183,11 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     model, results = train_model(splits["train"], splits["val"], model_config, train_config, out_dir, resume,
                                  progress, head_extra, fz_threshold=True)
     training_wall_s = time.perf_counter() - started
+    # A model trained again over another: its records go first, so that a stop or failure while the new files are
+    # written leaves none of them beside the new model (eval took the old training.json's test split, a fifth of it
+    # training frames of the new model; found by a walkthrough).
+    for record in (TRAINING_JSON, METRICS_JSON, FZ_MAP_PNG):
+        (out_dir / record).unlink(missing_ok=True)
     save_model(model, out_dir, sensor)
     export_all(model, out_dir)
     metrics = record_test_metrics(out_dir, splits["test"], data_source, sensor, threads)

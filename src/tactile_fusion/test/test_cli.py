@@ -722,6 +722,26 @@ def test_resuming_a_finished_model_is_refused_and_leaves_it_as_it_is(tiny_model,
     assert {f.name: file_sha256(f) for f in finished.iterdir()} == before
 
 
+def test_a_model_trained_again_drops_the_old_records_before_it_writes_its_files(tiny_model, tmp_path, monkeypatch):
+    """A stop while the new model's files were written left the old training.json and metrics.json beside them, and
+    eval measured the new model on the old test split (found by a walkthrough)."""
+    from tactile_fusion import pipeline
+    from tactile_fusion.cli import main
+
+    out, _ = tiny_model
+    again = tmp_path / "model"
+    shutil.copytree(out, again)
+
+    def failing_export(model, out_dir):
+        raise OSError("the disk filled up while the graphs were written")
+
+    monkeypatch.setattr(pipeline, "export_all", failing_export)
+    with pytest.raises(OSError, match="the disk filled up"):
+        main(["train", "--out", str(again), "--frames", "30", "--epochs", "1", "--head-epochs", "1", *TINY])
+    assert (again / MODEL_JSON).is_file() and not (again / TRAINING_JSON).exists()
+    assert not (again / METRICS_JSON).exists() and not (again / "fz_map.png").exists()
+
+
 def test_training_from_scratch_over_the_checkpoints_of_an_interrupted_one_is_refused(tmp_path, capsys):
     """Without --resume the new training overwrote the end-to-end checkpoint and left the head phases' of the other
     training beside it, which a later --resume refused (found by a walkthrough)."""
