@@ -213,7 +213,7 @@ def open_dataset(path: str | os.PathLike, sensor: SensorDescription | None = Non
             array = np.load(file, mmap_mode="r")
         except FileNotFoundError as exc:
             raise DatasetError(f"{directory} lacks {file.name}; regenerate the data set") from exc
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty file
             raise DatasetError(f"{file} is corrupt or truncated ({exc}); regenerate the data set") from exc
         shape, dtype = expected[name]
         if array.shape != shape or array.dtype != dtype:

@@ -106,6 +106,9 @@ def test_truncated_array_is_reported(sim, written, tmp_path):
     (broken / "images.npy").write_bytes(data[: len(data) // 2])
     with pytest.raises(DatasetError, match="images.npy is corrupt or truncated"):
         open_dataset(broken)
+    (broken / "images.npy").write_bytes(b"")  # numpy's EOFError went through as a traceback (walkthrough)
+    with pytest.raises(DatasetError, match=r"images.npy is corrupt or truncated \(No data left in file\)"):
+        open_dataset(broken)
 
 
 def test_incomplete_and_foreign_directories_are_reported(sim, written, tmp_path):
