@@ -175,6 +175,10 @@ def cmd_train(args) -> int:
     head_extra = _further_draws(args, sensor)
     _output_dir(args.out)  # once the settings are accepted, before the data is simulated and the model trained
     splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
+    if not splits["train"].bin_forces_n.any():  # a perfect score on nothing, without a word (walkthrough)
+        print(f"tactile-fusion train: warning: the {len(splits['train'])} training frames carry no load (the default "
+              "scene's first 120 frames are at rest): the model learns no force, and its test figures say nothing of "
+              "presses; take more frames (--frames)", file=sys.stderr)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     source = f"dataset {Path(args.dataset).resolve()}" if args.dataset else scene_source(args.scene)
     metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
@@ -417,7 +421,8 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--dataset", type=named("a data set directory"),
                       help="train on a dataset written by `tactile-sim generate` instead")
     parser.add_argument("--frames", type=whole_number_argument(3, "frames", " (a train/val/test split needs 3)"),
-                        help="use only the first N frames of the scene or dataset")
+                        help="use only the first N frames of the scene or dataset (the default scene's first 120 "
+                        "are at rest)")
     parser.add_argument("--epochs", type=int, default=train.max_epochs,
                         help="at most this many end-to-end epochs (default %(default)s, sized for the default scene's "
                         "32340 training frames: scale it for a smaller or larger data set)")

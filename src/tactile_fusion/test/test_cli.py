@@ -52,7 +52,10 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     for name in (MODEL_JSON, STATE_DICT, TRAINING_JSON, METRICS_JSON, *ONNX_FILES.values()):
         assert (out / name).is_file(), name
     assert not list(out.glob("checkpoint_*.pt"))
-    # The default scene's first 60 frames are at rest: no force to learn at all, so the model keeps all three.
+    # The default scene's first 60 frames are at rest: no force to learn at all, so the model keeps all three, and
+    # train says so (it wrote a model that scored 0.000 everywhere without a word; walkthrough).
+    assert ("tactile-fusion train: warning: the 42 training frames carry no load (the default scene's first 120 frames "
+            "are at rest)") in result.stderr
     assert json.loads((out / MODEL_JSON).read_text())["components"] == ["fx", "fy", "fz"]
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
