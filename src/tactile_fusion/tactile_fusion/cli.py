@@ -21,6 +21,7 @@ import argparse
 import contextlib
 import json
 import os
+import re
 import shlex
 import sys
 import tempfile
@@ -75,7 +76,13 @@ def _threads(args) -> None:
 
 
 def _conv_channels(args) -> tuple[int, ...]:
-    return tuple(int(c) for c in args.conv_channels.split(",")) if args.conv_channels else ModelConfig().conv_channels
+    if not args.conv_channels:
+        return ModelConfig().conv_channels
+    try:
+        return tuple(int(c) for c in args.conv_channels.split(","))
+    except ValueError:  # int()'s "invalid literal for int() with base 10: 'a'" named no option (walkthrough)
+        raise SettingsError(f"--conv-channels must be whole numbers separated by commas, such as "
+                            f"{','.join(map(str, ModelConfig().conv_channels))}, got {args.conv_channels!r}") from None
 
 
 def _model_config(args) -> ModelConfig:
@@ -126,8 +133,29 @@ def _settings(args, cameras: int, **train_overrides) -> tuple[ModelConfig, Train
         model_config, train_config = _model_config(args), replace(_train_config(args), **train_overrides)
         train_config.check_batch_sizes(cameras)
     except ValueError as exc:
-        raise SettingsError(str(exc)) from exc
+        raise SettingsError(_named_by_option(str(exc))) from exc
     return model_config, train_config
+
+
+#: The command-line option of each TrainConfig and ModelConfig field that has one, where it is not the field's name.
+OPTION_OF_FIELD = {"max_epochs": "--epochs"}
+#: The fields whose option is named after them.
+FIELDS_OF_OPTIONS = ("batch_size", "learning_rate", "patience", "seed", "head_epochs", "head_batch_size",
+                     "head_learning_rate", "head_dropout", "head_noise_sigma", "head_blur_fraction",
+                     "head_blur_sigma_px", "head_misalign_fraction", "head_misalign_shift_px",
+                     "head_misalign_rotation_deg", "head_cycles", "head_precision", "recalibration_epochs",
+                     "conv_channels", "hidden_features", "camera_features", "feature_activation")
+
+
+def _named_by_option(message: str) -> str:
+    """A TrainConfig or ModelConfig refusal naming the command-line option, not the field ("TrainConfig.max_epochs
+    must be ..." for --epochs 0; walkthrough)."""
+    def option(match: re.Match) -> str:
+        field = match[1]
+        if field in OPTION_OF_FIELD:
+            return OPTION_OF_FIELD[field]
+        return "--" + field.replace("_", "-") if field in FIELDS_OF_OPTIONS else match[0]
+    return re.sub(r"(?:TrainConfig\.|ModelConfig: )(\w+)", option, message)
 
 
 def _fractions(text: str) -> list[float]:
@@ -437,12 +465,14 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-cycles", type=int, default=train.head_cycles,
                         help="run the head phase and the least-squares fit this many times, each from the one before "
                         "with a new imperfect copy (default %(default)s, see docs/learning.md)")
-    parser.add_argument("--batch-size", type=int, default=train.batch_size, help="frames per end-to-end step")
-    parser.add_argument("--learning-rate", type=float, default=train.learning_rate)
+    parser.add_argument("--batch-size", type=int, default=train.batch_size,
+                        help="frames per end-to-end step (default %(default)s)")
+    parser.add_argument("--learning-rate", type=float, default=train.learning_rate,
+                        help="of the end-to-end phase, at its start (a cosine takes it down; default %(default)s)")
     parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size,
                         help="frames per step of the head phase and of recalibration")
     parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate,
-                        help="learning rate of the head phase and of recalibration")
+                        help="learning rate of the head phase and of recalibration (default %(default)s)")
     parser.add_argument("--head-dropout", type=float, default=train.head_dropout,
                         help="dropout rate of the fully connected layers in the head phase and recalibration (default "
                         "%(default)s; the end-to-end phase uses the model's, 0.1)")
@@ -467,14 +497,19 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="precision of the forward pass in the steps of the head phase and of recalibration "
                         "(default %(default)s: bf16 where the CPU has bf16 instructions, else fp32; see "
                         "docs/learning.md)")
-    parser.add_argument("--patience", type=int, default=train.patience, help="early stopping patience (epochs)")
+    parser.add_argument("--patience", type=int, default=train.patience,
+                        help="early stopping patience (epochs, default %(default)s)")
     parser.add_argument("--seed", type=int, default=train.seed, help="of the model's initial weights, the batches, "
                         "dropout and the imperfect copies (0 to 4294967295, default %(default)s)")
     parser.add_argument("--conv-channels", help="channels of the conv blocks, comma separated (default "
                         f"{','.join(map(str, model.conv_channels))})")
-    parser.add_argument("--hidden-features", type=int, default=model.hidden_features)
-    parser.add_argument("--camera-features", type=int, default=model.camera_features)
-    parser.add_argument("--fusion-rank", type=int, default=model.fusion_rank, help="0: dense fusion matrix")
+    parser.add_argument("--hidden-features", type=int, default=model.hidden_features,
+                        help="width of the first fully connected layer (default %(default)s)")
+    parser.add_argument("--camera-features", type=int, default=model.camera_features,
+                        help="features per camera, the second fully connected layer's width (default %(default)s)")
+    parser.add_argument("--fusion-rank", type=whole_number_argument(0, "ranks", " (0: a dense fusion matrix)"),
+                        default=model.fusion_rank or 0, help="rank of the fusion layer (default %(default)s: a dense "
+                        "fusion matrix)")
     parser.add_argument("--feature-activation", choices=list(FEATURE_ACTIVATIONS), default=model.feature_activation,
                         help="of the fully connected layers (default %(default)s)")
     parser.add_argument("--out", required=True, type=named("a directory"), help="output directory")

@@ -420,17 +420,18 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
 
 
 @pytest.mark.parametrize("command, setting, message", [
-    ("train", ["--head-dropout", "1.5"], "TrainConfig.head_dropout must be in [0, 1)"),
-    ("train", ["--epochs", "0"], "TrainConfig.max_epochs must be a whole number >= 1"),
-    ("train", ["--seed", "-1"], "TrainConfig.seed must be a whole number from 0 to 4294967295, got -1"),
-    ("train", ["--head-noise-sigma", "-1"], "TrainConfig.head_noise_sigma must be in [0, 255]"),
-    ("train", ["--head-misalign-shift-px", "20"], "TrainConfig.head_misalign_shift_px must be in [0, 16]"),
-    ("train", ["--head-misalign-rotation-deg", "50"], "TrainConfig.head_misalign_rotation_deg must be in [0, 45]"),
+    ("train", ["--head-dropout", "1.5"], "--head-dropout must be in [0, 1)"),
+    # named the field, TrainConfig.max_epochs, not the option (walkthrough)
+    ("train", ["--epochs", "0"], "--epochs must be a whole number >= 1"),
+    ("train", ["--seed", "-1"], "--seed must be a whole number from 0 to 4294967295, got -1"),
+    ("train", ["--head-noise-sigma", "-1"], "--head-noise-sigma must be in [0, 255]"),
+    ("train", ["--head-misalign-shift-px", "20"], "--head-misalign-shift-px must be in [0, 16]"),
+    ("train", ["--head-misalign-rotation-deg", "50"], "--head-misalign-rotation-deg must be in [0, 45]"),
     ("train", ["--head-extra-draws", "-1"],
      "argument --head-extra-draws: must be a whole number of draws >= 0, got '-1'"),
     ("train", ["--dataset", "data", "--head-extra-draws", "1"],
      "--head-extra-draws 1: a dataset cannot be drawn again"),
-    ("recalibrate", ["--recalibration-epochs", "0"], "TrainConfig.recalibration_epochs must be a whole number >= 1"),
+    ("recalibrate", ["--recalibration-epochs", "0"], "--recalibration-epochs must be a whole number >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0.5,0.5"], "--fractions must name two different fractions or more"),
@@ -579,16 +580,24 @@ def one_camera_sensor(tmp_path) -> Path:
     ("eval --scene shear --dataset DATA", "eval: error: argument --dataset: not allowed with argument --scene"),
     ("train --scene shear --dataset DATA --out OUT",
      "train: error: argument --dataset: not allowed with argument --scene"),
-    ("train --learning-rate inf --out OUT", "train: error: TrainConfig.learning_rate must be a finite number > 0"),
+    ("train --learning-rate inf --out OUT", "train: error: --learning-rate must be a number in (0, 1], got inf"),
+    # the fp16 graph overflowed, found only when the trained model was measured (walkthrough)
+    ("train --learning-rate 10 --out OUT", "train: error: --learning-rate must be a number in (0, 1], got 10.0"),
     ("recalibrate --head-learning-rate inf --out OUT",
-     "recalibrate: error: TrainConfig.head_learning_rate must be a finite number > 0"),
-    ("train --hidden-features 0 --out OUT", "train: error: ModelConfig: hidden_features must be a whole number from 1 "
+     "recalibrate: error: --head-learning-rate must be a number in (0, 1], got inf"),
+    ("train --hidden-features 0 --out OUT", "train: error: --hidden-features must be a whole number from 1 "
      "to 16384, got 0"),
-    ("train --hidden-features 1000000000 --out OUT", "train: error: ModelConfig: hidden_features must be a whole "
+    ("train --hidden-features 1000000000 --out OUT", "train: error: --hidden-features must be a whole "
      "number from 1 to 16384, got 1000000000"),
-    ("train --conv-channels 4,-8 --out OUT", "train: error: ModelConfig: conv_channels must be one or more whole"),
+    ("train --conv-channels 4,-8 --out OUT", "train: error: --conv-channels must be one or more whole"),
+    # int()'s "invalid literal for int() with base 10: 'a'" (walkthrough)
+    ("train --conv-channels 4,a --out OUT", "train: error: --conv-channels must be whole numbers separated by commas, "
+     "such as 4,8,16,16, got '4,a'"),
+    # "must be >= 1 or None", though the option takes 0 for a dense layer (walkthrough)
+    ("train --fusion-rank -1 --out OUT", "train: error: argument --fusion-rank: must be a whole number of ranks >= 0 "
+     "(0: a dense fusion matrix), got '-1'"),
     ("train --sensor ONE_CAMERA --head-batch-size 1 --out OUT",
-     "train: error: TrainConfig.head_batch_size must be >= 2 for a 1-camera model"),
+     "train: error: --head-batch-size must be >= 2 for a 1-camera model"),
     # failed in torch's matrix product once the frames were simulated (found in review)
     ("train --sensor NOT_SQUARE --out OUT", "train: error: NOT_SQUARE: the model takes square camera images of one "
      "size, the sensor description's cameras.output is 128 x 64 px"),
