@@ -51,10 +51,12 @@ def least_squares_line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 def camera_to_add(sensor: SensorDescription, added_camera: str | None) -> str:
     """The camera the study adds: `added_camera`, or the sensor's last camera when None; ValueError unless it is one of
     the sensor's cameras and the sensor has another to train the base model with."""
+    if sensor.n_cameras < 2:  # blamed --add-camera, also where none was given (walkthrough)
+        raise ValueError(f"the recalibration study adds a camera to a model of the others: the sensor description "
+                         f"{sensor.source} has one camera, {sensor.camera_ids[0]!r}; it needs two or more")
     camera = added_camera or sensor.camera_ids[-1]
-    if camera not in sensor.camera_ids or sensor.n_cameras < 2:
-        raise ValueError(f"--add-camera {camera!r}: expected one of {list(sensor.camera_ids)} on a sensor with at "
-                         "least two cameras")
+    if camera not in sensor.camera_ids:
+        raise ValueError(f"--add-camera {camera!r}: expected one of {list(sensor.camera_ids)}")
     return camera
 
 
