@@ -377,6 +377,8 @@ def force_scale_from_targets(bin_forces_n: torch.Tensor, floor_fraction: float =
     set gets 1 N, so the scale is always finite and > 0. Targets holding NaN or Inf raise ValueError (their RMS is no
     scale).
     """
+    if bin_forces_n.numel() == 0:  # its mean is NaN, which was reported as forces holding NaN (walkthrough)
+        raise ValueError("force_scale_from_targets: no training forces (zero frames)")
     rms = torch.sqrt(torch.mean(bin_forces_n.reshape(-1, 3).to(torch.float64) ** 2, dim=0))
     if not torch.isfinite(rms).all():
         raise ValueError("force_scale_from_targets: the training forces hold NaN or Inf (or overflow float64)")

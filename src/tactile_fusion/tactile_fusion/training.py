@@ -213,8 +213,11 @@ def rmse_loss(prediction: torch.Tensor, target: torch.Tensor, eps: float = 1e-8)
 
     d sqrt(m)/dm = 1 / (2 sqrt(m)) is infinite at m = 0 (an exact batch gives NaN gradients, SENSOR_BRIEF
     hazards); with eps the gradient is dm / (2 sqrt(m + eps)), which is 0 when the error is 0. eps = 1e-8 on
-    normalised forces moves the loss by at most 1e-4 of the force scale.
+    normalised forces moves the loss by at most 1e-4 of the force scale. An empty batch raises ValueError (the mean of
+    nothing is NaN).
     """
+    if prediction.numel() == 0:
+        raise ValueError("rmse_loss: an empty batch has no error")
     return torch.sqrt(torch.mean((prediction - target) ** 2) + eps)
 
 

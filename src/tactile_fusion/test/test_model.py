@@ -115,8 +115,10 @@ def test_force_scale_is_finite_and_positive_when_most_bins_are_zero():
     assert torch.isfinite(normalised).all()
 
 
-def test_force_scale_of_all_zero_data_is_one():
+def test_force_scale_of_all_zero_data_is_one_and_of_no_data_refused():
     torch.testing.assert_close(force_scale_from_targets(torch.zeros(4, 2, 2, 3)), torch.ones(3))
+    with pytest.raises(ValueError, match=r"no training forces \(zero frames\)"):  # said "hold NaN or Inf"
+        force_scale_from_targets(torch.zeros(0, 2, 2, 3))
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf")])

@@ -52,6 +52,11 @@ def test_rmse_matches_the_definition_away_from_zero():
     assert float(rmse_loss(prediction, target, eps=1e-12)) == pytest.approx(np.sqrt(13 / 3), rel=1e-6)
 
 
+def test_rmse_of_an_empty_batch_is_refused():
+    with pytest.raises(ValueError, match="an empty batch has no error"):  # the mean of nothing: NaN
+        rmse_loss(torch.zeros(0, 3), torch.zeros(0, 3))
+
+
 def test_training_lowers_the_validation_error(frames, tiny_config):
     config = TrainConfig(max_epochs=10, batch_size=4, learning_rate=3e-2, patience=10)
     model, result = trained(frames, tiny_config, config)
