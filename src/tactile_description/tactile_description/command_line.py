@@ -127,18 +127,23 @@ def whole_number_argument(minimum: int, unit: str, why: str = "", maximum: int |
     return parse
 
 
-def number_argument(low: float, unit: str, inclusive: bool = False):
-    """An argparse type: a finite number of `unit` above `low` (at or above it, with `inclusive`). float() alone would
-    take "nan" and "inf", which every comparison lets through or which never ends a wait."""
-    bound = f"{'>=' if inclusive else '>'} {low:g}"
+def number_argument(low: float, unit: str | None, inclusive: bool = False, high: float | None = None):
+    """An argparse type: a finite number of `unit` (None: a plain number) above `low` (at or above it, with
+    `inclusive`), and at most `high` where given. float() alone would take "nan" and "inf", which every comparison lets
+    through or which never ends a wait."""
+    if high is None:
+        bound = f"{'>=' if inclusive else '>'} {low:g}"
+    else:
+        bound = f"in {'[' if inclusive else '('}{low:g}, {high:g}]"
+    what = "a finite number" if unit is None else f"a finite number of {unit}"
 
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             value = None
-        if not (is_number(value) and (value >= low if inclusive else value > low)):
-            raise argparse.ArgumentTypeError(f"must be a finite number of {unit} {bound}, got {text!r}")
+        if not (is_number(value) and (value >= low if inclusive else value > low) and (high is None or value <= high)):
+            raise argparse.ArgumentTypeError(f"must be {what} {bound}, got {text!r}")
         return value
     return parse
 

@@ -35,6 +35,7 @@ from tactile_description.command_line import (
     ArgumentParser,
     StopSignal,
     error_exit,
+    number_argument,
     one_line,
     stop_signals_raised,
     stops_quietly_on_closed_pipe,
@@ -440,6 +441,12 @@ def named(what: str):
     return parse
 
 
+#: --learning-rate and --head-learning-rate: Adam moves each weight by up to about the learning rate per step; at 10
+#: the weights outgrew float16 and the fp16 graph overflowed, found only once the trained model was measured
+#: (walkthrough). TrainConfig takes any rate > 0: the tests train with rates that diverge on purpose.
+LEARNING_RATE = number_argument(0.0, None, high=1.0)
+
+
 def _training_options(parser: argparse.ArgumentParser) -> None:
     model, train = ModelConfig(), TrainConfig()
     data = parser.add_mutually_exclusive_group()
@@ -467,11 +474,11 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         "with a new imperfect copy (default %(default)s, see docs/learning.md)")
     parser.add_argument("--batch-size", type=int, default=train.batch_size,
                         help="frames per end-to-end step (default %(default)s)")
-    parser.add_argument("--learning-rate", type=float, default=train.learning_rate,
+    parser.add_argument("--learning-rate", type=LEARNING_RATE, default=train.learning_rate,
                         help="of the end-to-end phase, at its start (a cosine takes it down; default %(default)s)")
     parser.add_argument("--head-batch-size", type=int, default=train.head_batch_size,
                         help="frames per step of the head phase and of recalibration")
-    parser.add_argument("--head-learning-rate", type=float, default=train.head_learning_rate,
+    parser.add_argument("--head-learning-rate", type=LEARNING_RATE, default=train.head_learning_rate,
                         help="learning rate of the head phase and of recalibration (default %(default)s)")
     parser.add_argument("--head-dropout", type=float, default=train.head_dropout,
                         help="dropout rate of the fully connected layers in the head phase and recalibration (default "

@@ -583,11 +583,13 @@ def one_camera_sensor(tmp_path) -> Path:
     ("eval --scene shear --dataset DATA", "eval: error: argument --dataset: not allowed with argument --scene"),
     ("train --scene shear --dataset DATA --out OUT",
      "train: error: argument --dataset: not allowed with argument --scene"),
-    ("train --learning-rate inf --out OUT", "train: error: --learning-rate must be a number in (0, 1], got inf"),
+    ("train --learning-rate inf --out OUT",
+     "train: error: argument --learning-rate: must be a finite number in (0, 1], got 'inf'"),
     # the fp16 graph overflowed, found only when the trained model was measured (walkthrough)
-    ("train --learning-rate 10 --out OUT", "train: error: --learning-rate must be a number in (0, 1], got 10.0"),
+    ("train --learning-rate 10 --out OUT", "train: error: argument --learning-rate: must be a finite number in (0, 1], "
+     "got '10'"),
     ("recalibrate --head-learning-rate inf --out OUT",
-     "recalibrate: error: --head-learning-rate must be a number in (0, 1], got inf"),
+     "recalibrate: error: argument --head-learning-rate: must be a finite number in (0, 1], got 'inf'"),
     ("train --hidden-features 0 --out OUT", "train: error: --hidden-features must be a whole number from 1 "
      "to 16384, got 0"),
     ("train --hidden-features 1000000000 --out OUT", "train: error: --hidden-features must be a whole "
