@@ -784,6 +784,13 @@ def test_a_model_that_outputs_inf_is_an_error_line_not_a_traceback(tiny_model, t
     torch.save(weights, broken / STATE_DICT)
     assert "torch fp32: the model produced NaN or Inf from finite inputs" in refusal(
         capsys, "eval", "--model", broken, "--backend", "torch", "--frames", "2", "--quiet")
+    # A weight beyond float16's range: fp32 runs, fp16 overflows, and re-exporting (the advice given) cannot help
+    weights["fusion.expand.bias"][0] = 1e6
+    torch.save(weights, broken / STATE_DICT)
+    assert refusal(capsys, "eval", "--model", broken, "--backend", "torch", "--precision", "fp16", "--frames", "2",
+                   "--quiet").endswith("torch fp16: the model produced NaN or Inf from finite inputs: its weights or "
+                                       "activations exceed float16's range (65504), as those of a training that "
+                                       "diverged do; use fp32, or retrain the model")
 
 
 @pytest.fixture
