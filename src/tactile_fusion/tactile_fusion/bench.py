@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile_description.command_line import one_line
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_fusion.artifacts import (
     METRICS_JSON,
@@ -104,18 +105,30 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
 def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int = 30,
               threads: int | None = 1) -> dict:
     """{backend_precision: {ms_per_frame, p90_ms, ratio_to_baseline, accuracy}} plus the setting, for one model
-    directory. runs: timed calls per backend, at least 1 (ValueError otherwise)."""
+    directory. runs: timed calls per backend, at least 1 (ValueError otherwise). A backend and precision whose file
+    is missing or damaged, or whose model overflows, is left out and listed under "failed" with the reason; the
+    baseline's failure is raised (every ratio is to it)."""
     if not is_whole_number(runs):
         raise ValueError(f"benchmark: runs must be a whole number >= 1, got {runs!r}")
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
-    predictors = {f"{backend}_{precision}": load_predictor(model_dir, backend, precision, threads)
-                  for backend, precisions in BACKENDS.items() for precision in precisions}
     accuracy, stale = recorded_accuracy(model_dir)  # a damaged metrics.json is refused before the runs
-    baseline = predictors[BASELINE]
+    baseline = load_predictor(model_dir, *BASELINE.split("_"), threads)
     images, reference = synthetic_frame(len(baseline.camera_ids), baseline.image_size)
+    predictors, failed = {}, {}
+    for backend, precisions in BACKENDS.items():
+        for precision in precisions:
+            key = f"{backend}_{precision}"
+            try:
+                predictor = baseline if key == BASELINE else load_predictor(model_dir, backend, precision, threads)
+                call_times_s(predictor, images, reference, warmup)
+            except (ModelFileError, FloatingPointError) as exc:
+                # One graph missing or overflowing (fp16) ended the benchmark of all the others (walkthrough).
+                if key == BASELINE:
+                    raise
+                failed[key] = one_line(exc)
+            else:
+                predictors[key] = predictor
     times = {key: [] for key in predictors}
-    for predictor in predictors.values():
-        call_times_s(predictor, images, reference, warmup)
     block = max(1, -(-runs // ROUNDS))
     while any(len(t) < runs for t in times.values()):
         for key, predictor in predictors.items():
@@ -131,4 +144,4 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
             "threads": threads,
             "statistic": "median over runs of one predict() call, input checks included",
             "accuracy_source": f"{METRICS_JSON} (test split, written by tactile-fusion train)" if accuracy else None,
-            "accuracy_stale": stale}
+            "accuracy_stale": stale, "failed": failed}

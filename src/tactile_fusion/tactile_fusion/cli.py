@@ -428,7 +428,9 @@ def cmd_bench(args) -> int:
                          f"tactile-fusion export{model} --measure)")
             print(f"{name:<20} {entry['ms_per_frame']:8.3f} ms/frame  (p90 {entry['p90_ms']:.3f}, "
                   f"x{entry['ratio_to_baseline']:.2f} of {report['baseline']}){error}")
-    return 0
+    for name, why in report["failed"].items():
+        print(f"tactile-fusion bench: {name} left out: {why}", file=sys.stderr)
+    return 1 if report["failed"] else 0
 
 
 def named(what: str):

@@ -165,12 +165,30 @@ def test_bench_json_reports_each_backend_and_precision(tiny_model):
                                        "torch_fp16"}
     assert all(entry["ms_per_frame"] > 0 for entry in report["backends"].values())
     assert report["backends"]["onnxruntime_fp32"]["ratio_to_baseline"] == 1.0
-    assert report["cameras"] == 4 and report["batch"] == 1
+    assert report["cameras"] == 4 and report["batch"] == 1 and report["failed"] == {}
     trained = json.loads((out / METRICS_JSON).read_text())["backends"]
     for name, entry in report["backends"].items():  # the accuracy the training measured, next to the speed
         assert entry["accuracy"]["rmse_bin_fz_n"] == trained[name]["rmse_bin_n"][2]
         assert entry["accuracy"]["rmse_total_fz_n"] == trained[name]["rmse_total_n"][2]
     assert "mN per bin" in run("bench", "--model", str(out), "--runs", "5").stdout
+
+
+def test_bench_leaves_out_a_backend_that_cannot_run_and_times_the_others(tiny_model, tmp_path):
+    """One graph missing (an export stopped) ended the benchmark of every backend (walkthrough)."""
+    out, _ = tiny_model
+    partial = tmp_path / "model"
+    shutil.copytree(out, partial)
+    (partial / ONNX_FILES["int8"]).unlink()
+    result = run("bench", "--model", str(partial), "--runs", "5", "--json", check=False)
+    report = json.loads(result.stdout)
+    assert result.returncode == 1 and set(report["failed"]) == {"onnxruntime_int8"}
+    assert f"{partial / ONNX_FILES['int8']} is missing" in report["failed"]["onnxruntime_int8"]
+    assert set(report["backends"]) == {"onnxruntime_fp32", "onnxruntime_fp16", "torch_fp32", "torch_fp16"}
+    left_out = f"tactile-fusion bench: onnxruntime_int8 left out: {partial / ONNX_FILES['int8']} is missing"
+    assert left_out in run("bench", "--model", str(partial), "--runs", "5", check=False).stderr
+    (partial / ONNX_FILES["fp32"]).unlink()  # the baseline, to which every ratio is
+    result = run("bench", "--model", str(partial), "--runs", "5", check=False)
+    assert result.returncode == 2 and "model.onnx is missing" in result.stderr and not result.stdout
 
 
 def test_bench_without_recorded_metrics_reports_speed_only(tiny_model, tmp_path):
@@ -813,7 +831,7 @@ def _edited_json(path: Path, change) -> None:
      r"model.pt cannot be read or does not fit model.json \(it holds a list, not a state dict\): .*retrain"),
     (STATE_DICT, lambda p: (p.unlink(), p.mkdir()), "eval --backend torch",
      r"model.pt cannot be read or does not fit model.json \(.*Is a directory"),
-    (STATE_DICT, lambda p: torch.save(torch.zeros(3), p), "bench",
+    (STATE_DICT, lambda p: torch.save(torch.zeros(3), p), "eval --backend torch",
      r"model.pt cannot be read or does not fit model.json \(it holds a Tensor, not a state dict\)"),
     (MODEL_JSON, lambda p: _edited_json(p, lambda d: d.update(format_version="1")), "eval",
      "model.json: format_version '1' is not 1; retrain the model"),
