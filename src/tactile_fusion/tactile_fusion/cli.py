@@ -618,9 +618,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _left_behind(args) -> str:
-    """What a stopped command leaves that matters: train's checkpoints, which `--resume` continues from."""
+    """What a stopped command leaves that matters: train's checkpoints, which `--resume` continues from; export's
+    graphs, some of them rewritten and the int8 one perhaps deleted (it is removed first, so that no graph of another
+    model stays behind; a stop said nothing of it: walkthrough)."""
     from tactile_fusion.pipeline import CHECKPOINTS
 
+    if args.command == "export":
+        model = f" --model {shlex.quote(str(args.model))}" if args.model else ""
+        return (f"; the ONNX graphs of {args.model or default_model_dir()} may be some new, some old, and the int8 "
+                f"one missing: run tactile-fusion export{model} again")
     if args.command != "train" or not any(Path(args.out).glob(CHECKPOINTS)):
         return ""
     return (f"; the checkpoints in {args.out} continue the training where it stopped: run the same command with "

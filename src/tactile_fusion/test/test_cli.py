@@ -191,6 +191,29 @@ def test_bench_leaves_out_a_backend_that_cannot_run_and_times_the_others(tiny_mo
     assert result.returncode == 2 and "model.onnx is missing" in result.stderr and not result.stdout
 
 
+def test_a_stop_during_export_says_the_graphs_may_be_incomplete(tiny_model, tmp_path, monkeypatch, capsys):
+    """The int8 graph is removed before it is written again: a stop then left it missing without a word (walkthrough).
+    The signal is sent to this process as the int8 graph is quantized."""
+    from tactile_fusion import pipeline
+    from tactile_fusion.cli import main
+
+    out, _ = tiny_model
+    model = tmp_path / "model"
+    shutil.copytree(out, model)
+    quantize = pipeline.quantize_int8
+
+    def quantize_and_stop(fp32_path, int8_path):
+        Path(int8_path).unlink()
+        os.kill(os.getpid(), signal.SIGTERM)
+        return quantize(fp32_path, int8_path)
+
+    monkeypatch.setattr(pipeline, "quantize_int8", quantize_and_stop)
+    assert main(["export", "--model", str(model)]) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"tactile-fusion export: stopped by SIGTERM; the ONNX graphs of {model} may be some new, some old, and the "
+        f"int8 one missing: run tactile-fusion export --model {model} again")
+
+
 def test_bench_without_recorded_metrics_reports_speed_only(tiny_model, tmp_path):
     out, _ = tiny_model
     bare = tmp_path / "model"
