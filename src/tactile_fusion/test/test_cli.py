@@ -448,6 +448,22 @@ def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
     assert (tmp_path / "recalibration.json").is_file() and (tmp_path / "recalibration.png").is_file()
 
 
+def test_the_recalibration_table_names_every_fraction_and_a_slowdown_as_such():
+    from tactile_fusion.cli import recalibration_text
+
+    def metrics(fz_n: float) -> dict:
+        return {"frames": 10, "rmse_bin_n": [0.0, 0.0, fz_n], "rmse_total_n": [0.0, 0.0, 10 * fz_n]}
+
+    runs = [{"fraction": f, "wall_time_s": 4.0, "metrics": metrics(0.003)} for f in (0.001, 0.004)]
+    report = {"base_cameras": 3, "base_training": {"metrics": metrics(0.004)},
+              "full_training": {"wall_time_s": 2.8, "metrics": metrics(0.002)}, "recalibration": runs,
+              "speedup": {"fraction": 0.004, "factor": 0.7}}
+    text = recalibration_text(report, "OUT")
+    for row in ("3 cameras (before recalibration)", "full training", "recalibrated 0.1 %", "recalibrated 0.4 %"):
+        assert row in text, text
+    assert text.endswith("recalibration with 0.4 % of the data 4.0 s: 1.4x slower; written to OUT")
+
+
 def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
     from tactile_description import load_sensor
     from tactile_sim import Simulator, load_scene, write_dataset
