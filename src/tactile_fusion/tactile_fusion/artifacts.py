@@ -217,6 +217,11 @@ def _description_problem(description: dict) -> str:
         ModelConfig.from_dict(description.get("model_config"))
     except (TypeError, KeyError, ValueError) as exc:
         return f"model_config {description.get('model_config')!r} is not a model configuration ({exc!r})"
+    try:  # here, not where they are read (model_components, model_threshold), so that the error names the file
+        checked_components(description.get("components", FORCE_COMPONENTS))
+        checked_threshold(description.get("fz_threshold_n"))
+    except ValueError as exc:
+        return str(exc)
     return ""
 
 

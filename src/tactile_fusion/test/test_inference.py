@@ -423,7 +423,9 @@ def test_a_model_json_without_an_fz_threshold_has_none_and_a_bad_one_is_refused(
     for bad in (-0.001, "NaN", "0.002", True, [0.001]):
         (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "fz_threshold_n": bad}))
         for backend in ("torch", "onnxruntime"):
-            with pytest.raises(ModelFileError, match="fz_threshold_n must be None or a finite number"):
+            # named neither the file nor what to do (walkthrough)
+            with pytest.raises(ModelFileError, match=re.escape(f"{tmp_path / MODEL_JSON}: fz_threshold_n must be None "
+                                                               "or a finite number")):
                 load_predictor(tmp_path, backend)
 
 
@@ -438,7 +440,8 @@ def test_a_model_json_from_before_components_could_be_left_out_estimates_all_thr
     assert load_predictor(tmp_path, "onnxruntime").components == ("fx", "fy", "fz")
     for bad in (None, ["fz", "fz"], ["fz", "tz"], []):
         (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "components": bad}))
-        with pytest.raises(ModelFileError, match="components must be distinct names"):
+        with pytest.raises(ModelFileError, match=r"components must be distinct names.*; the file is damaged or was "
+                                                 "edited: copy the model directory again or retrain it"):
             load_predictor(tmp_path, "onnxruntime")
 
 
