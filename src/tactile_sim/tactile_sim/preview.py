@@ -94,8 +94,10 @@ def _force_panel(ax, frame: Frame, sensor: SensorDescription) -> None:
 def save_preview(path: str | os.PathLike, frame: Frame, reference: np.ndarray, sensor: SensorDescription,
                  title: str = "") -> Path:
     fig = preview_figure(frame, reference, sensor, title)
-    fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
+    try:  # a figure that cannot be saved (disk full) is closed all the same: pyplot keeps every open one
+        fig.savefig(path, bbox_inches="tight")
+    finally:
+        plt.close(fig)
     return Path(path)
 
 
@@ -135,6 +137,8 @@ def _save_rest(path: Path, reference: np.ndarray, sensor: SensorDescription) -> 
     for ax in axes.ravel():
         ax.axis("off")
     fig.suptitle(f"{sensor.name}: rest frames (the reference the model subtracts)", fontsize=9)
-    fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
+    try:
+        fig.savefig(path, bbox_inches="tight")
+    finally:
+        plt.close(fig)
     return path
