@@ -8,6 +8,7 @@ from tactile_description import load_sensor
 from tactile_description.imaging import crop_and_downsample
 from tactile_sim.contact import Contact, Sphere
 from tactile_sim.render import Optics, ParticleRenderer, Spots
+from tactile_sim.scene import parse_scene
 from tactile_sim.simulator import Simulator, quantize
 
 #: Documented agreement of the fast path with capture rendering + crop_and_downsample (uint8 images): the mean
@@ -167,3 +168,16 @@ def test_spots_just_outside_each_cameras_image_draw_their_visible_part_only(sim)
             expected = np.where(window, 100.0 * np.exp(-((cols - u) ** 2 + (rows - v) ** 2) / (2 * 0.9**2)), 0.0)
             np.testing.assert_allclose(image[cam], expected, rtol=1e-5, atol=1e-6)
             assert image[cam].max() > 0.0 and not np.delete(image, cam, axis=0).any()
+
+
+def test_a_preview_that_cannot_be_saved_leaves_no_figure_open(sim, tmp_path):
+    """pyplot keeps every open figure: a preview that failed to save stayed in memory (code review)."""
+    import matplotlib.pyplot as plt
+
+    from tactile_sim.preview import save_preview
+
+    frame = next(sim.stream(parse_scene({"name": "p", "seed": 1, "timeline": [{"rest": {"frames": 1}}]})))
+    plt.close("all")
+    with pytest.raises(OSError):
+        save_preview(tmp_path / "no such directory" / "p.png", frame, sim.reference_images(), sim.sensor)
+    assert plt.get_fignums() == []
