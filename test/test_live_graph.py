@@ -11,7 +11,7 @@ import torch
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tactile_bringup.graph import NodeSpec, sensor_graph
-from tactile_bringup.processes import spin_until, start_graph, start_node, stop_nodes
+from tactile_bringup.processes import GraphStartError, spin_until, start_graph, start_node, stop_nodes
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_description import default_sensor_path, load_sensor
@@ -97,6 +97,27 @@ def test_demo_names_the_node_that_refused_its_model_and_why(ros_domain, run_grap
     assert "node tactile_fusion exited with status 2 while the graph started" in demo.stderr
     assert f"no model in {tmp_path / 'no_model'}: no such directory" in demo.stderr, demo.stderr
     assert not (tmp_path / "tactile_sim_cameras.log").exists()  # the cameras were never started
+
+
+def test_a_node_that_cannot_be_started_leaves_none_of_the_graph_running(ros_probe, tmp_path, monkeypatch):
+    """The nodes started before it were collected in a list built whole, lost when a later start failed, and left
+    running (code review). The second node's log is a directory, so it cannot be started."""
+    from tactile_bringup import processes
+
+    config = str(default_sensor_path())
+    graph = sensor_graph(load_sensor(config), config, "sim", "demo")
+    second = [s for s in graph if s.package != "tactile_camera_driver"][1]
+    (tmp_path / f"{second.name}.log").mkdir()
+    begun = []
+
+    def recorded(spec, log_dir, env=None):
+        begun.append(start_node(spec, log_dir, env))
+        return begun[-1]
+
+    monkeypatch.setattr(processes, "start_node", recorded)
+    with pytest.raises(GraphStartError, match=f"node {second.name} cannot be started"):
+        start_graph(graph, tmp_path, ros_probe)
+    assert len(begun) == 1 and begun[0].poll() is not None
 
 
 def test_demo_refuses_a_sensor_file_it_cannot_read(tmp_path):

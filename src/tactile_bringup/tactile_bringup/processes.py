@@ -104,7 +104,8 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     others = [s for s in specs if s not in cameras]
     processes = []
     try:
-        processes += [started(spec, log_dir) for spec in others]
+        for spec in others:  # one at a time: a list built whole lost the processes before a start that failed
+            processes.append(started(spec, log_dir))
         spin_until(probe, lambda: probe.count_publishers(ESTIMATE_TOPIC) or first_exited(others, processes),
                    timeout_s)
         died = first_exited(others, processes)
@@ -114,7 +115,8 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
                                   f"{log_tail(log_dir, died) or '(its log is empty)'} (log: {log_dir / died.name}.log)")
         if not probe.count_publishers(ESTIMATE_TOPIC):
             print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
-        processes += [started(spec, log_dir) for spec in cameras]
+        for spec in cameras:
+            processes.append(started(spec, log_dir))
     except BaseException:  # Ctrl-C, an error while waiting or a node that exited: leave no node behind
         stop_nodes(processes)
         raise
