@@ -27,19 +27,17 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
 from tactile_description import SensorDescription, load_sensor
-from tactile_description.sensor import SensorConfigError
+from tactile_description.sensor import MAX_FRAME_RATE_HZ, MIN_FRAME_RATE_HZ, SensorConfigError
 from tactile_description.value_checks import is_number, is_whole_number
 
 #: The descriptor of a parameter whose type the node checks and converts itself.
 DYNAMIC = ParameterDescriptor(dynamic_typing=True)
 
-#: The longest period or timeout that period_s takes, and one over the lowest rate that rate_hz takes: one day.
+#: The rates that rate_hz takes (cameras, RViz markers): those a sensor description's frame_rate_hz may give, one a day
+#: to 1 kHz.
+MIN_RATE_HZ, MAX_RATE_HZ = MIN_FRAME_RATE_HZ, MAX_FRAME_RATE_HZ
+#: The longest period or timeout that period_s takes: one day, that of the lowest rate.
 MAX_PERIOD_S = 86_400.0
-MIN_RATE_HZ = 1.0 / MAX_PERIOD_S
-#: The highest rate that rate_hz takes. The sensor's cameras run at 40 Hz, a fast USB camera at a few hundred, the RViz
-#: markers at 10 by default; a camera or marker rate above 1 kHz is a typo, and a node could not keep it anyway (a
-#: frame of the simulated sensor takes milliseconds to render).
-MAX_RATE_HZ = 1000.0
 #: The shortest period or timeout that period_s takes: that of the highest rate.
 MIN_PERIOD_S = 1.0 / MAX_RATE_HZ
 

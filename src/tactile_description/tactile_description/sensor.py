@@ -37,9 +37,11 @@ MAX_BINS = 16384
 MAX_PARTICLES = 1_000_000
 
 
-#: The highest camera frame rate a sensor description may give: a fast USB camera runs at a few hundred Hz, and the
-#: camera nodes take at most 1 kHz (tactile_conversions.parameters.MAX_RATE_HZ), where a higher rate read from the
-#: description was refused as if the user had set their `rate_hz`.
+#: The camera frame rates a sensor description may give, one frame a day to 1 kHz, and so the rates the camera nodes'
+#: `rate_hz` takes (tactile_conversions.parameters): a rate of the description beyond them was refused by the nodes as
+#: if the user had set `rate_hz` (found in review). The sensor's cameras run at 40 Hz, a fast USB camera at a few
+#: hundred; above 1 kHz is a typo, and a node could not keep it anyway (a simulated frame takes milliseconds).
+MIN_FRAME_RATE_HZ = 1.0 / 86_400.0
 MAX_FRAME_RATE_HZ = 1000.0
 
 #: A camera id names the camera's topic (/tactile/<id>/image), node and frame: a ROS name token, as rcl validates
@@ -182,7 +184,8 @@ class SensorDescription:
 
     @property
     def particle_count(self) -> int:
-        """The particles in the particle layer: its volume times the density, rounded (not a random draw)."""
+        """The particles in the particle layer: its volume times the density, rounded (not a random draw); the
+        description is refused where that is beyond MAX_PARTICLES, infinite included."""
         return int(round(self.particles.per_m3 * self.particle_layer_volume_m3))
 
     def layer(self, name: str) -> GelLayer:
@@ -312,24 +315,31 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     ids = [cam.camera_id for cam in cameras]
     if len(set(ids)) != len(ids):
         raise SensorConfigError(f"{source}: camera ids must be unique, got {ids}")
-    frame_rate_hz = cams.number("frame_rate_hz", positive=True, high=MAX_FRAME_RATE_HZ)
+    frame_rate_hz = cams.number("frame_rate_hz", low=MIN_FRAME_RATE_HZ, high=MAX_FRAME_RATE_HZ)
     cams.finish()
 
-    description = SensorDescription(name=str(top.raw("name", required=True)),
-                                    frame_id=str(top.raw("frame_id", required=True)), grid=grid,
+    texts = {}
+    for key in ("name", "frame_id"):  # a YAML null was the frame "None" (found in review)
+        texts[key] = top.raw(key, required=True)
+        if not (isinstance(texts[key], str) and texts[key].strip()):
+            raise SensorConfigError(f"{source}.{key} must be a non-empty text, got {texts[key]!r}")
+    description = SensorDescription(name=texts["name"], frame_id=texts["frame_id"], grid=grid,
                                     gel_layers=tuple(layers), particles=particles, cameras=tuple(cameras),
                                     frame_rate_hz=frame_rate_hz, source=source)
     top.finish()
     description.layer(particles.layer)  # raises if the particle layer is not one of the gel layers
+    particles_in_layer = particles.per_m3 * description.particle_layer_volume_m3  # inf for 1e300 per mm^3: checked
+    if particles_in_layer > MAX_PARTICLES:  # before it is rounded (OverflowError, a traceback: found in review)
+        raise SensorConfigError(f"{source}: particles.per_mm3 = {particles.per_m3 * MM**3:g} puts "
+                                f"{particles_in_layer:.3g} particles in the "
+                                f"{description.particle_layer_volume_m3 / MM**3:.4g} mm^3 of layer "
+                                f"{particles.layer!r}, more than {MAX_PARTICLES}; give the gel's real particle density "
+                                "and size")
     if description.particle_count < 1:
         volume_mm3 = description.particle_layer_volume_m3 / MM**3
         raise SensorConfigError(f"{source}: particles.per_mm3 = {particles.per_m3 * MM**3:g} puts no particle in the "
                                 f"{volume_mm3:.4g} mm^3 of layer {particles.layer!r}; the cameras would see nothing: "
                                 f"use at least {0.5 / volume_mm3:.3g} per mm^3")
-    if description.particle_count > MAX_PARTICLES:
-        raise SensorConfigError(f"{source}: particles.per_mm3 = {particles.per_m3 * MM**3:g} puts "
-                                f"{description.particle_count:.3g} particles in layer {particles.layer!r}, more than "
-                                f"{MAX_PARTICLES}; give the gel's real particle density")
     for cam in cameras:
         if cam.position_m[2] > -description.gel_thickness_m:
             raise SensorConfigError(f"{source}: camera {cam.camera_id} at z = {cam.position_m[2] / MM} mm is "

@@ -153,7 +153,7 @@ class YamlFields:
                positive: bool = False) -> float:
         value = self.raw(key, default, required=default is None)
         if not is_number(value) or not low <= value <= high or (positive and value <= 0):
-            bounds = (f"> 0 and <= {high:g}" if high < math.inf else "> 0") if positive else f"in [{low}, {high}]"
+            bounds = (f"> 0 and <= {high:g}" if high < math.inf else "> 0") if positive else f"in [{low:g}, {high:g}]"
             raise self.error(f"{self.where}.{key} must be a number {bounds}, got {value!r}")
         return float(value)
 

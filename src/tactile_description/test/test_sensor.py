@@ -77,8 +77,18 @@ def _broken(tmp_path, edit):
     (lambda r: r["surface"].pop("bin_rows"), "surface: missing key 'bin_rows'"),
     (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be a number > 0"),
     # the camera nodes refused it as their rate_hz parameter, which the user had not set
-    (lambda r: r["cameras"].update(frame_rate_hz=2000), "cameras.frame_rate_hz must be a number > 0 and <= 1000, "
-                                                        "got 2000"),
+    (lambda r: r["cameras"].update(frame_rate_hz=2000), "cameras.frame_rate_hz must be a number in "
+                                                        r"\[1.15741e-05, 1000\], got 2000"),
+    # loaded, then refused by the camera nodes as their rate_hz, which the user had not set (code review)
+    (lambda r: r["cameras"].update(frame_rate_hz=1e-6), "cameras.frame_rate_hz must be a number in "
+                                                        r"\[1.15741e-05, 1000\], got 1e-06"),
+    # OverflowError rounding an infinite particle count: a traceback from every node and command (code review)
+    (lambda r: r["particles"].update(per_mm3=1e300), "particles.per_mm3 = inf puts inf particles in the 7497 mm"),
+    (lambda r: r["surface"].update(width_mm=1e200, length_mm=1e200), "puts inf particles in the inf mm"),
+    (lambda r: r["gel_layers"][1].update(thickness_mm=1e308), "puts inf particles in the inf mm"),
+    # a YAML null was the frame "None" (code review)
+    (lambda r: r.update(frame_id=None), r"frame_id must be a non-empty text, got None"),
+    (lambda r: r.update(name=" "), r"name must be a non-empty text, got ' '"),
     (lambda r: r["surface"].update(bin_cols=2.5), "surface.bin_cols must be an integer"),
     (lambda r: r["surface"].update(bin_colls=25), r"surface: unknown key\(s\) \['bin_colls'\]"),
     (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), r"gel_layers\[1\].poisson_ratio must be a number in"),
@@ -98,8 +108,8 @@ def _broken(tmp_path, edit):
     (lambda r: r["gel_layers"][2].update(name="particle_layer"), r"gel_layers\[\*\].name must be unique"),
     (lambda r: r["particles"].update(per_mm3=1e-6), r"particles.per_mm3 = 1e-06 puts no particle in the 7497 mm\^3"),
     # failed allocations of terabytes in the simulator, with a traceback
-    (lambda r: r["particles"].update(per_mm3=1e9), r"particles.per_mm3 = 1e\+09 puts 7.5e\+12 particles in layer "
-                                                   r"'particle_layer', more than 1000000; give the gel's real"),
+    (lambda r: r["particles"].update(per_mm3=1e9), r"particles.per_mm3 = 1e\+09 puts 7.5e\+12 particles in the "
+                                                   r"7497 mm\^3 of layer 'particle_layer', more than 1000000"),
     (lambda r: r["surface"].update(bin_rows=2600000000), "surface 2600000000 x 25 bins is more than 16384 bins"),
     (lambda r: r["cameras"]["output"].update(width=100000, height=100000),
      r"cameras.output 100000 x 100000 px is larger than the 240 x 240 px crop"),
