@@ -33,9 +33,10 @@ from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
+from tactile_conversions.forces import forces_from_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.ros_time import is_ros_time, time_to_seconds
-from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
+from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S, camera_topic
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, LiveEstimation
@@ -46,8 +47,6 @@ if TYPE_CHECKING:  # the model stack (torch, onnxruntime) takes seconds to impor
     from tactile_fusion.inference import ForcePredictor
 
 SOURCES = ("auto", "images", "bundles")
-#: Largest distance between an estimate's stamp and its ground truth's (the sensor's frames are 25 ms apart).
-MATCH_TOLERANCE_S = 0.010
 
 
 @dataclass
@@ -213,7 +212,6 @@ def read_ground_truth(bag: BagReader, sensor: SensorDescription, topic: str = GR
 
     A bag without the topic has no ground truth (empty arrays), or is an error when it is `required`.
     """
-    rows, cols = sensor.grid.rows, sensor.grid.cols
     if topic not in bag.topics and not required:
         return no_ground_truth(sensor)
     bag.require_topics([topic])
@@ -222,13 +220,12 @@ def read_ground_truth(bag: BagReader, sensor: SensorDescription, topic: str = GR
     stamps, forces = [], []
     for _, _, time_ns, raw in bag.messages([topic]):
         msg = deserialize(raw, ForceDistribution, topic, time_ns)
-        if (msg.rows, msg.cols) != (rows, cols) or len(msg.forces_n) != rows * cols * 3:
-            raise BagError(f"bag {bag.path}: ground truth on {topic} has {msg.rows} x {msg.cols} bins and "
-                           f"{len(msg.forces_n)} values, the sensor description has {rows} x {cols}: evaluate "
-                           "with the sensor description the bag was recorded with (--sensor)")
-        values = np.asarray(msg.forces_n, dtype=np.float32).reshape(rows, cols, 3)
-        if not np.isfinite(values).all():
-            raise BagError(f"bag {bag.path}: ground truth on {topic} at {time_ns} ns holds NaN or Inf")
+        try:
+            values = forces_from_msg(msg, sensor.grid).astype(np.float32)
+        except ValueError as exc:
+            raise BagError(f"bag {bag.path}: ground truth on {topic} at {time_ns} ns has {exc}: evaluate with the "
+                           "sensor description the bag was recorded with (--sensor), or record the ground truth "
+                           "again") from exc
         stamps.append(time_to_seconds(msg.header.stamp))
         forces.append(values)
     if not forces:

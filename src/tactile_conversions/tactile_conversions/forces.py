@@ -31,6 +31,20 @@ def checked_forces(bin_forces_n: np.ndarray, grid: BinGrid, dtype: type = np.flo
     return forces
 
 
+def forces_from_msg(msg: ForceDistribution, grid: BinGrid) -> np.ndarray:
+    """The (rows, cols, 3) float64 forces of a received ForceDistribution of `grid`; ValueError naming what is wrong:
+    another grid, a value count that does not fill it, or a NaN or Inf among them. For the subscribers that compare
+    messages with the sensor description (tactile-demo, tactile-bag eval)."""
+    rows, cols = grid.rows, grid.cols
+    if (msg.rows, msg.cols) != (rows, cols) or len(msg.forces_n) != rows * cols * 3:
+        raise ValueError(f"{msg.rows} x {msg.cols} bins and {len(msg.forces_n)} values, where the sensor description "
+                         f"has {rows} x {cols} bins ({rows * cols * 3} values)")
+    forces = np.asarray(msg.forces_n, dtype=np.float64).reshape(rows, cols, 3)
+    if not np.isfinite(forces).all():
+        raise ValueError("NaN or Inf among its forces")
+    return forces
+
+
 def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
                            camera_ids: Sequence[str], missing_camera_ids: Sequence[str],
                            estimated_components: Sequence[str]) -> ForceDistribution:

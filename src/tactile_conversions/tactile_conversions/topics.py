@@ -5,6 +5,10 @@ from __future__ import annotations
 BUNDLE_TOPIC = "/tactile/image_bundle"
 ESTIMATE_TOPIC = "/tactile/force_distribution"
 GROUND_TRUTH_TOPIC = "/tactile/ground_truth/force_distribution"
+#: Largest distance between an estimate's stamp and its ground truth's for the two to be compared (tactile-demo,
+#: tactile-bag eval): the sensor's frames are 25 ms apart, and an estimate's stamp, its bundle's, is the median of
+#: jittered camera stamps.
+MATCH_TOLERANCE_S = 0.010
 WRENCH_TOPIC = "/tactile/wrench"
 MARKERS_TOPIC = "/tactile/force_markers"
 

@@ -3,7 +3,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker
 
-from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
+from tactile_conversions.forces import force_distribution_msg, force_markers, forces_from_msg, wrench_msg
 from tactile_description import FORCE_COMPONENTS, load_sensor
 
 
@@ -32,6 +32,25 @@ def test_layout_is_row_major_with_components_innermost(grid):
     assert list(msg.camera_ids) == ["cam0", "cam1"] and list(msg.missing_camera_ids) == ["cam2"]
     assert msg.header.stamp.sec == 7 and msg.header.frame_id == "tactile_surface"
     assert list(msg.estimated_components) == ["fx", "fy", "fz"]
+
+
+def test_a_received_distribution_is_read_back_or_refused_naming_what_is_wrong(grid):
+    forces = loaded_bins(grid)
+    msg = force_distribution_msg(forces, grid, Time(sec=7), "tactile_surface", ["cam0"], [], FORCE_COMPONENTS)
+    np.testing.assert_array_equal(forces_from_msg(msg, grid), forces)
+    assert forces_from_msg(msg, grid).dtype == np.float64
+    msg.forces_n = msg.forces_n[:10]
+    with pytest.raises(ValueError, match=r"26 x 25 bins and 10 values, where the sensor description has 26 x 25 bins "
+                                         r"\(1950 values\)"):
+        forces_from_msg(msg, grid)
+    msg = force_distribution_msg(forces, grid, Time(sec=7), "tactile_surface", ["cam0"], [], FORCE_COMPONENTS)
+    msg.rows, msg.cols = 25, 26
+    with pytest.raises(ValueError, match="25 x 26 bins and 1950 values"):
+        forces_from_msg(msg, grid)
+    msg = force_distribution_msg(forces, grid, Time(sec=7), "tactile_surface", ["cam0"], [], FORCE_COMPONENTS)
+    msg.forces_n[4] = float("nan")
+    with pytest.raises(ValueError, match="NaN or Inf among its forces"):
+        forces_from_msg(msg, grid)
 
 
 def test_components_not_estimated_are_named_and_must_be_zero(grid):
