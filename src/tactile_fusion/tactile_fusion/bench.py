@@ -111,8 +111,9 @@ def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int 
     if not is_whole_number(runs):
         raise ValueError(f"benchmark: runs must be a whole number >= 1, got {runs!r}")
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
-    accuracy, stale = recorded_accuracy(model_dir)  # a damaged metrics.json is refused before the runs
+    # The baseline first: a directory without a model is refused as such, not for its metrics.json (found in review).
     baseline = load_predictor(model_dir, *BASELINE.split("_"), threads)
+    accuracy, stale = recorded_accuracy(model_dir)  # a damaged metrics.json is refused before the runs
     images, reference = synthetic_frame(len(baseline.camera_ids), baseline.image_size)
     predictors, failed = {}, {}
     for backend, precisions in BACKENDS.items():

@@ -194,7 +194,14 @@ def _further_draws(args, sensor):
 
 
 def cmd_train(args) -> int:
-    from tactile_fusion.pipeline import check_fresh, check_resumable, scene_source, train_and_export, training_splits
+    from tactile_fusion.pipeline import (
+        DEFAULT_SCENE,
+        check_fresh,
+        check_resumable,
+        scene_source,
+        train_and_export,
+        training_splits,
+    )
 
     (check_resumable if args.resume else check_fresh)(args.out)
     _threads(args)
@@ -205,9 +212,12 @@ def cmd_train(args) -> int:
     _output_dir(args.out)  # once the settings are accepted, before the data is simulated and the model trained
     splits = training_splits(sensor, args.scene, args.dataset, args.frames, progress=not args.quiet)
     if not splits["train"].bin_forces_n.any():  # a perfect score on nothing, without a word (walkthrough)
-        print(f"tactile-fusion train: warning: the {len(splits['train'])} training frames carry no load (the default "
-              "scene's first 120 frames are at rest): the model learns no force, and its test figures say nothing of "
-              "presses; take more frames (--frames)", file=sys.stderr)
+        limited = args.frames is not None
+        hint = (" (the default scene's first 120 frames are at rest)" if limited and not args.dataset
+                and args.scene == DEFAULT_SCENE else "")
+        print(f"tactile-fusion train: warning: the {len(splits['train'])} training frames carry no load{hint}: the "
+              "model learns no force, and its test figures say nothing of presses"
+              + ("; take more frames (--frames)" if limited else ""), file=sys.stderr)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     source = f"dataset {Path(args.dataset).resolve()}" if args.dataset else scene_source(args.scene)
     metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
@@ -360,17 +370,17 @@ def cmd_recalibrate(args) -> int:
 
 
 def recalibration_text(report: dict, out: str) -> str:
-    """The table and the summary line `recalibrate` prints of its study's report. Fractions to three digits: 0.001
+    """The table and the summary line `recalibrate` prints of its study's report. Fractions to six digits: 0.001
     and 0.004 were both "0 %", one row in place of two; a recalibration slower than full training was "0.7x faster";
     the base model's row was in the JSON only (walkthrough)."""
     table = metrics_table({f"{report['base_cameras']} cameras (before recalibration)":
                            report["base_training"]["metrics"], "full training": report["full_training"]["metrics"]}
-                          | {f"recalibrated {100 * r['fraction']:.3g} %": r["metrics"]
+                          | {f"recalibrated {100 * r['fraction']:g} %": r["metrics"]
                              for r in report["recalibration"]})
     speedup = report["speedup"]
     factor = speedup["factor"]
     return (f"{table}\nfull training {report['full_training']['wall_time_s']:.1f} s, recalibration with "
-            f"{100 * speedup['fraction']:.3g} % of the data {report['recalibration'][-1]['wall_time_s']:.1f} s: "
+            f"{100 * speedup['fraction']:g} % of the data {report['recalibration'][-1]['wall_time_s']:.1f} s: "
             + (f"{factor:.1f}x faster" if factor >= 1 else f"{1 / factor:.1f}x slower") + f"; written to {out}")
 
 

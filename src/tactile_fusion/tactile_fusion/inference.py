@@ -144,7 +144,8 @@ class ForcePredictor:
             if self.precision == "fp16":  # re-exporting, the advice below, overflowed again (walkthrough)
                 raise FloatingPointError(f"{self.backend} fp16: the model produced NaN or Inf from finite inputs: "
                                          "its weights or activations exceed float16's range (65504), as those of a "
-                                         "training that diverged do; use fp32, or retrain the model")
+                                         "training that diverged do; use fp32, or retrain the model (if fp32 fails "
+                                         "too, the model file is corrupt)")
             remedy = ("re-export it from model.pt (tactile-fusion export)" if self.backend == "onnxruntime" else
                       "restore model.pt from a copy or retrain the model")
             raise FloatingPointError(f"{self.backend} {self.precision}: the model produced NaN or Inf from finite "

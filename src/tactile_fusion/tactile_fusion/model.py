@@ -347,7 +347,9 @@ def checked_components(components) -> tuple[str, ...]:
     """A list of force components to estimate, checked (distinct names from FORCE_COMPONENTS, at least one) and put
     in the output's order."""
     names = list(components) if isinstance(components, (list, tuple)) else None
-    if not names or len(set(names)) != len(names) or set(names) - set(FORCE_COMPONENTS):
+    # strings first: a list such as [["fz"]] is unhashable, and set() raised TypeError (found in review)
+    if (not names or not all(isinstance(n, str) for n in names) or len(set(names)) != len(names)
+            or set(names) - set(FORCE_COMPONENTS)):
         raise ValueError(f"components must be distinct names from {list(FORCE_COMPONENTS)}, got {components!r}")
     return tuple(c for c in FORCE_COMPONENTS if c in names)
 

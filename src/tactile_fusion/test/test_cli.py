@@ -214,6 +214,15 @@ def test_a_stop_during_export_says_the_graphs_may_be_incomplete(tiny_model, tmp_
         f"int8 one missing: run tactile-fusion export --model {model} again")
 
 
+def test_bench_of_a_directory_without_a_model_says_so_before_reading_its_metrics(tiny_model, tmp_path, capsys):
+    """With metrics.json read first, a directory without model.json ended in a FileNotFoundError (found in review)."""
+    out, _ = tiny_model
+    (tmp_path / METRICS_JSON).write_text((out / METRICS_JSON).read_text())
+    assert refusal(capsys, "bench", "--model", tmp_path).endswith(f"no model in {tmp_path}: model.json is missing; "
+                                                                  "train one with `tactile-fusion train --out DIR` or "
+                                                                  "give the directory of a trained model")
+
+
 def test_bench_without_recorded_metrics_reports_speed_only(tiny_model, tmp_path):
     out, _ = tiny_model
     bare = tmp_path / "model"
@@ -454,14 +463,29 @@ def test_the_recalibration_table_names_every_fraction_and_a_slowdown_as_such():
     def metrics(fz_n: float) -> dict:
         return {"frames": 10, "rmse_bin_n": [0.0, 0.0, fz_n], "rmse_total_n": [0.0, 0.0, 10 * fz_n]}
 
-    runs = [{"fraction": f, "wall_time_s": 4.0, "metrics": metrics(0.003)} for f in (0.001, 0.004)]
+    runs = [{"fraction": f, "wall_time_s": 4.0, "metrics": metrics(0.003)} for f in (0.001, 0.004, 0.1234, 0.1235)]
     report = {"base_cameras": 3, "base_training": {"metrics": metrics(0.004)},
               "full_training": {"wall_time_s": 2.8, "metrics": metrics(0.002)}, "recalibration": runs,
               "speedup": {"fraction": 0.004, "factor": 0.7}}
     text = recalibration_text(report, "OUT")
-    for row in ("3 cameras (before recalibration)", "full training", "recalibrated 0.1 %", "recalibrated 0.4 %"):
+    for row in ("3 cameras (before recalibration)", "full training", "recalibrated 0.1 %", "recalibrated 0.4 %",
+                "recalibrated 12.34 %", "recalibrated 12.35 %"):
         assert row in text, text
     assert text.endswith("recalibration with 0.4 % of the data 4.0 s: 1.4x slower; written to OUT")
+
+
+def test_the_no_load_warning_of_a_dataset_names_neither_the_default_scene_nor_frames(tmp_path):
+    """The warning named the default scene's rest frames and --frames for any data (found in review)."""
+    from tactile_description import load_sensor
+    from tactile_sim import Simulator, load_scene, write_dataset
+
+    sensor = load_sensor()
+    dataset = write_dataset(Simulator(sensor), load_scene("paper_grid", sensor), tmp_path / "rest", progress=False,
+                            frames=6)
+    result = run("train", "--dataset", str(dataset), "--epochs", "1", "--head-epochs", "1", "--out",
+                 str(tmp_path / "model"), *TINY)
+    assert ("tactile-fusion train: warning: the 4 training frames carry no load: the model learns no force, and its "
+            "test figures say nothing of presses\n") in result.stderr
 
 
 def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
@@ -847,7 +871,8 @@ def test_a_model_that_outputs_inf_is_an_error_line_not_a_traceback(tiny_model, t
     assert refusal(capsys, "eval", "--model", broken, "--backend", "torch", "--precision", "fp16", "--frames", "2",
                    "--quiet").endswith("torch fp16: the model produced NaN or Inf from finite inputs: its weights or "
                                        "activations exceed float16's range (65504), as those of a training that "
-                                       "diverged do; use fp32, or retrain the model")
+                                       "diverged do; use fp32, or retrain the model (if fp32 fails too, the model "
+                                       "file is corrupt)")
 
 
 @pytest.fixture

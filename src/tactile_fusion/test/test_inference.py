@@ -438,7 +438,7 @@ def test_a_model_json_from_before_components_could_be_left_out_estimates_all_thr
     assert load_model(tmp_path).components == ("fx", "fy", "fz")
     export_onnx(load_model(tmp_path), tmp_path / ONNX_FILES["fp32"])
     assert load_predictor(tmp_path, "onnxruntime").components == ("fx", "fy", "fz")
-    for bad in (None, ["fz", "fz"], ["fz", "tz"], []):
+    for bad in (None, ["fz", "fz"], ["fz", "tz"], [], [["fz"]], [{"fz": 1}]):  # the last two: TypeError before
         (tmp_path / MODEL_JSON).write_text(json.dumps({**description, "components": bad}))
         with pytest.raises(ModelFileError, match=r"components must be distinct names.*; the file is damaged or was "
                                                  "edited: copy the model directory again or retrain it"):
