@@ -107,3 +107,38 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, tmp_
     summary = json.loads(evaluated.stdout)
     assert summary["source"] == "images" and summary["estimates"] >= minimum - 10
     assert summary["matched_with_ground_truth"] >= summary["estimates"] - 2  # truth may lag at the bag's ends
+
+
+#: A publisher outside the stack, best effort (sensor-data QoS), of a String every 20 ms until it is stopped.
+BEST_EFFORT_PUBLISHER = """
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import String
+rclpy.init()
+node = rclpy.create_node("foreign_best_effort")
+publisher = node.create_publisher(String, "/foreign_best_effort", qos_profile_sensor_data)
+node.create_timer(0.02, lambda: publisher.publish(String(data="x")))
+try:
+    rclpy.spin(node)
+except KeyboardInterrupt:
+    pass
+"""
+
+
+def test_a_best_effort_topic_outside_the_stack_is_recorded(ros_probe, tmp_path):
+    """Its reliable subscription matched no best-effort publisher: 0 messages, and the tool asked whether the graph
+    was running (code review)."""
+    import signal
+    import sys
+
+    publisher = subprocess.Popen([sys.executable, "-c", BEST_EFFORT_PUBLISHER])
+    try:
+        assert spin_until(ros_probe, lambda: ros_probe.count_publishers("/foreign_best_effort"), 20.0)
+        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--topics", "/foreign_best_effort")
+    finally:
+        publisher.send_signal(signal.SIGINT)
+        publisher.wait(timeout=20)
+    assert recorded.returncode == 0, recorded.stderr
+    with BagReader(tmp_path / "bag") as bag:
+        assert bag.topics == {"/foreign_best_effort": "std_msgs/msg/String"}
+        assert sum(1 for _ in bag.messages(["/foreign_best_effort"])) >= 10

@@ -15,10 +15,11 @@ from pathlib import Path
 
 import rclpy
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from tactile_bag.bagfile import BagError, BagWriter
 from tactile_bag.message_types import MessageTypeError, message_class
-from tactile_bag.topics import absolute_topic, qos_profile
+from tactile_bag.topics import RELIABLE_DEPTH, absolute_topic, qos_profile
 from tactile_conversions.stop_signals import until_stop_signal
 from tactile_description.command_line import stop_signals_ignored
 from tactile_description.value_checks import is_number
@@ -27,15 +28,14 @@ from tactile_description.value_checks import is_number
 class Recorder(Node):
     """Subscribes every topic raw and writes each message into `bag` as it arrives."""
 
-    def __init__(self, bag: BagWriter, topic_types: dict[str, str]):
+    def __init__(self, bag: BagWriter, topic_types: dict[str, str], qos: dict[str, QoSProfile]):
         super().__init__("tactile_bag_recorder")
         self.bag = bag
         self.first_arrival_s: float | None = None  # time.monotonic() of the first message
         for topic, msgtype in topic_types.items():
             bag.add_topic(topic, msgtype)
             self.create_subscription(message_class(msgtype), topic,
-                                     lambda raw, t=topic, m=msgtype: self.on_message(t, m, raw),
-                                     qos_profile(msgtype), raw=True)
+                                     lambda raw, t=topic, m=msgtype: self.on_message(t, m, raw), qos[topic], raw=True)
 
     def on_message(self, topic: str, msgtype: str, raw: bytes) -> None:
         if self.first_arrival_s is None:
@@ -65,6 +65,21 @@ def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str]
     return {t: types[t] for t in topics}
 
 
+def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]) -> dict[str, QoSProfile]:
+    """topic -> the QoS to record it with: the live graph's for the stack's topics (topics.qos_profile); for another
+    topic, best effort where one of its publishers offers no more, which a reliable subscription does not match
+    (a best-effort publisher outside the stack was recorded with 0 messages, and the tool asked whether the graph
+    was running; found in review)."""
+    qos = {}
+    for topic, msgtype in topic_types.items():
+        offered = [] if topic in known else node.get_publishers_info_by_topic(topic)
+        if any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in offered):
+            qos[topic] = QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+        else:
+            qos[topic] = qos_profile(msgtype)
+    return qos
+
+
 @dataclass(frozen=True)
 class Recording:
     counts: dict[str, int]  # messages per topic
@@ -90,6 +105,7 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
     probe = Node("tactile_bag_discovery")
     try:
         topic_types = resolve_topic_types(probe, topics, known_types, discovery_timeout_s)
+        qos = recording_qos(probe, topic_types, known_types)
     finally:
         probe.destroy_node()
     try:
@@ -98,7 +114,7 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
     except MessageTypeError as exc:
         raise BagError(f"cannot record: {exc}") from exc
     with BagWriter(out) as bag:
-        recorder = Recorder(bag, topic_types)
+        recorder = Recorder(bag, topic_types, qos)
         give_up = time.monotonic() + wait_s
         with until_stop_signal() as stop:
             try:

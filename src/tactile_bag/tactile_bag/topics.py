@@ -48,8 +48,9 @@ def qos_profile(msgtype: str) -> QoSProfile:
     """The QoS the live graph uses for a type: sensor-data (best effort) for camera images, as the camera drivers
     publish them and image_pipeline does; reliable for everything else.
 
-    Recording with it matches every publisher (a best-effort subscription also takes a reliable publisher's
-    messages); replaying with it gives subscribers exactly what the live graph gave them.
+    Recording the stack's topics with it matches their publishers (a best-effort subscription also takes a reliable
+    publisher's messages; record.recording_qos chooses for other topics); replaying with it gives subscribers exactly
+    what the live graph gave them.
     """
     if msgtype == IMAGE_TYPE:
         return qos_profile_sensor_data
