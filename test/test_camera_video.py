@@ -166,3 +166,28 @@ def test_no_such_file_is_said_of_a_path_that_names_nothing_only(tmp_path):
     video = write_video(tmp_path / "there.avi", 320, 240)
     for source in (0, str(tmp_path / "img_%04d.png"), str(video), "rtsp://192.168.1.5/stream"):
         assert missing_file(source) == "", source
+
+
+def test_a_source_that_appears_later_is_opened_by_the_monotonic_clock_not_the_nodes(ros_domain, tmp_path):
+    """The retries were scheduled on the node's clock: a simulated clock (here at 0 without /clock), or a step back of
+    the system clock, held them off after the first failure (code review). ensure_open is called directly."""
+    import time
+
+    import rclpy
+
+    from tactile_camera_driver.camera_node import CameraNode
+
+    camera = load_sensor().cameras[0]
+    video = tmp_path / "later.avi"
+    rclpy.init(args=["--ros-args", "-p", f"sensor_config:={default_sensor_path()}", "-p",
+                     f"camera_id:={camera.camera_id}", "-p", f"source:={video}", "-p", "reopen_period_s:=0.05",
+                     "-p", "use_sim_time:=true"])
+    node = CameraNode()
+    try:
+        assert not node.ensure_open()  # missing: the next try in reopen_period_s
+        write_video(video, *camera.capture_size)
+        time.sleep(0.2)
+        assert node.ensure_open()
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -26,6 +26,7 @@ before it is decoded, not before read() waits for it.
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 
 import cv2
@@ -120,13 +121,12 @@ class CameraNode(Node):
             self.capture.release()
         super().destroy_node()
 
-    def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
-
     def ensure_open(self) -> bool:
         if self.capture is not None and self.capture.isOpened():
             return True
-        if self.now_s() < self.next_open_s:
+        # The retries keep the monotonic clock, not the node's: a step back of the system clock, or a simulated clock,
+        # held them off (code review).
+        if time.monotonic() < self.next_open_s:
             return False
         self.capture = open_source(self.source, self.camera.capture_size, self.frame_rate_hz)
         if not self.capture.isOpened():
@@ -136,7 +136,7 @@ class CameraNode(Node):
                                     f"{missing_file(self.source)}; retrying every {retry_s:.3g} s",
                                     throttle_duration_sec=10.0)
             self.capture = None
-            self.next_open_s = self.now_s() + self.reopen_period_s
+            self.next_open_s = time.monotonic() + self.reopen_period_s
             return False
         self.get_logger().info(f"{self.camera_id}: reading {self.source!r}{self.device_mode()}")
         self.frames_since_rewind = 0
@@ -195,7 +195,7 @@ class CameraNode(Node):
         self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening")
         self.capture.release()
         self.capture = None
-        self.next_open_s = self.now_s() + self.reopen_period_s
+        self.next_open_s = time.monotonic() + self.reopen_period_s
         return False
 
 
