@@ -5,6 +5,8 @@
     topics      the stack's topics, their types and QoS
     record, play   the ROS side (rclpy nodes)
     evaluate    offline evaluation of a bag against its recorded ground truth (no DDS)
+    mcap_crcs   the MCAP file's CRCs, which the rosbags writer leaves 0, filled in and checked
+    cli         the `tactile-bag` command
 
 docs/bags.md describes the commands.
 """

@@ -110,7 +110,7 @@ def summarise(windows: list[dict[str, list[float]]], topic: str) -> dict:
 
 
 def inference_ms(model_dir: str, backend: str, precision: str) -> float:
-    """Median time of one predict() of a four-camera frame, as the fusion node runs it."""
+    """Median time of one predict() of a frame of all the model's cameras, as the fusion node runs it."""
     predictor = load_predictor(model_dir or None, backend, precision, FUSION_THREADS)
     images, reference = synthetic_frame(len(predictor.camera_ids), predictor.image_size)
     call_times_s(predictor, images, reference, 30)

@@ -1,12 +1,12 @@
 """ROS node: the simulated sensor's cameras, publishing like real ones.
 
-Plays a simulator scene (default `demo`, looped) at the sensor's frame rate and publishes each camera's
-128 x 128 mono8 image on `/tactile/<camera_id>/image` with sensor-data QoS, stamped with the capture time plus
-a random delay drawn afresh for each image, uniform in [0, `stamp_jitter_s`] (the spread of stamps of cameras that
-are not triggered together; 0 stamps every image with the capture time). `stamp_jitter_s` is at most one frame
-period (`declare_stamp_jitter`). A camera that the scene drops or freezes
-publishes nothing for that frame, exactly like a broken camera. With `loop` false the node says once that the
-scene ended and publishes nothing more (it keeps running). The scene's ground truth goes out on
+Plays a simulator scene (default `demo`, looped) at the sensor's frame rate and publishes each camera's mono8 image (the
+description's `cameras.output`, 128 x 128 on the reference sensor) on `/tactile/<camera_id>/image` with sensor-data QoS,
+stamped with the capture time plus a random delay drawn afresh for each image, uniform in [0, `stamp_jitter_s`] (the
+spread of stamps of cameras that are not triggered together; 0 stamps every image with the capture time).
+`stamp_jitter_s` is at most one frame period (`declare_stamp_jitter`). A camera that the scene drops or freezes
+publishes nothing for that frame, exactly like a broken camera. With `loop` false the node says once that the scene
+ended and publishes nothing more (it keeps running). The scene's ground truth goes out on
 `/tactile/ground_truth/force_distribution` (tactile_msgs/ForceDistribution) for live evaluation.
 
 The scene plays from its first frame once a camera's image topic has a subscriber; until then the node publishes
