@@ -46,7 +46,7 @@ from tactile_conversions.parameters import (
     sensor_description,
     text,
 )
-from tactile_conversions.topics import camera_topic
+from tactile_conversions.topics import camera_frame_id, camera_topic
 from tactile_description.imaging import FrameError, crop_and_downsample
 from tactile_description.value_checks import is_whole_number
 
@@ -165,7 +165,7 @@ class CameraNode(Node):
         except FrameError as exc:
             self.get_logger().error(str(exc), throttle_duration_sec=5.0)
             return
-        self.publisher.publish(mono8_to_msg(image, stamp, f"{self.camera_id}_optical"))
+        self.publisher.publish(mono8_to_msg(image, stamp, camera_frame_id(self.camera_id)))
         self.frames_published += 1
 
     def read_frame(self):

@@ -46,7 +46,7 @@ from tactile_conversions.parameters import (
     text,
 )
 from tactile_conversions.ros_time import seconds_to_time
-from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_topic
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_frame_id, camera_topic
 from tactile_description import FORCE_COMPONENTS, SensorConfigError
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import SceneError, Simulator, load_scene
@@ -151,7 +151,7 @@ class SimCameraNode(Node):
             if not frame.camera_ok[i]:
                 continue
             stamp = seconds_to_time(capture_s + self.rng.uniform(0.0, self.stamp_jitter_s))
-            self.image_pubs[camera_id].publish(mono8_to_msg(frame.images[i], stamp, f"{camera_id}_optical"))
+            self.image_pubs[camera_id].publish(mono8_to_msg(frame.images[i], stamp, camera_frame_id(camera_id)))
         self.truth_pub.publish(force_distribution_msg(frame.bin_forces_n, self.sensor.grid, seconds_to_time(capture_s),
                                                       self.sensor.frame_id, self.sensor.camera_ids, [],
                                                       FORCE_COMPONENTS))

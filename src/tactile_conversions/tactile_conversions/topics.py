@@ -16,3 +16,8 @@ MARKERS_TOPIC = "/tactile/force_markers"
 def camera_topic(camera_id: str) -> str:
     """Where the camera `camera_id` publishes its images."""
     return f"/tactile/{camera_id}/image"
+
+
+def camera_frame_id(camera_id: str) -> str:
+    """The frame_id of the camera `camera_id`'s images (the real and the simulated cameras stamp the same)."""
+    return f"{camera_id}_optical"
