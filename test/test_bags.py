@@ -134,7 +134,9 @@ def test_a_best_effort_topic_outside_the_stack_is_recorded(ros_probe, tmp_path):
     publisher = subprocess.Popen([sys.executable, "-c", BEST_EFFORT_PUBLISHER])
     try:
         assert spin_until(ros_probe, lambda: ros_probe.count_publishers("/foreign_best_effort"), 20.0)
-        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--topics", "/foreign_best_effort")
+        # its own discovery of the publisher takes seconds on a loaded machine (2 s, the default, was too short once)
+        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--topics", "/foreign_best_effort",
+                               "--discovery-timeout", "20", timeout_s=60.0)
     finally:
         publisher.send_signal(signal.SIGINT)
         publisher.wait(timeout=20)
