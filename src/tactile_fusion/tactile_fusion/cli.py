@@ -317,7 +317,7 @@ def cmd_eval(args) -> int:
     if changed:
         print(f"tactile-fusion eval: warning: {changed}", file=sys.stderr)
     out = _output_dir(args.out) if args.out else None
-    results = {}
+    results, figures = {}, {}
     sets, skipped = _eval_sets(args, sensor, model_dir)
     for name, frames in sets:
         if not frames.bin_forces_n.any():  # the default test split's first 21 frames are at rest (walkthrough)
@@ -329,7 +329,8 @@ def cmd_eval(args) -> int:
         results[name] = metrics
         if out:
             slug = name.replace(" ", "_").replace("/", "_").replace("(", "").replace(")", "")
-            plot_fz_maps(frames.bin_forces_n, predicted, out / f"fz_map_{slug}.png",
+            figures[name] = f"fz_map_{slug}.png"
+            plot_fz_maps(frames.bin_forces_n, predicted, out / figures[name],
                          f"{name}: Fz per bin ({args.backend} {args.precision})",
                          bin_size_mm=grid_bin_size_mm(sensor.grid))
     first = next(iter(results.values()))
@@ -337,8 +338,8 @@ def cmd_eval(args) -> int:
               "model": str(model_dir), "backend": args.backend, "precision": args.precision,
               "sensor_changes": changes, "data_sets": results,
               "hard_cases_left_out": skipped}
-    if out:
-        write_json(out / "metrics.json", report)
+    if out:  # with the figures of this evaluation: those of an earlier one in --out stay beside it (walkthrough)
+        write_json(out / "metrics.json", {**report, "figures": figures})
     if args.json:
         print(json.dumps(report))
     else:

@@ -88,8 +88,10 @@ def test_eval_json_has_the_paper_metrics(tiny_model, tmp_path):
     contact = report["data_sets"]["paper_grid test split"]["contact"]
     assert contact["contact_level_n"] == 0.01 and len(contact["bands"]) == 5
     assert contact["frames_without_load"] + sum(b["frames"] for b in contact["bands"]) == 4
-    assert (tmp_path / "metrics.json").is_file()
-    assert list(tmp_path.glob("fz_map_*.png"))
+    written = json.loads((tmp_path / "metrics.json").read_text())
+    # the figures of this evaluation, told apart from an earlier one's in the same --out (walkthrough)
+    assert written["figures"] == {"paper_grid test split": "fz_map_paper_grid_test_split.png"}
+    assert [p.name for p in tmp_path.glob("fz_map_*.png")] == ["fz_map_paper_grid_test_split.png"]
     assert report["sensor_changes"] == [] and "warning" not in result.stderr  # trained for this description
     # The test split's first frames are at rest: all-zero figures that read like a perfect score (docs walkthrough).
     assert "the 4 frame(s) of paper_grid test split carry no load: their figures say nothing of presses" in \
