@@ -110,8 +110,8 @@ def test_a_node_that_cannot_be_started_leaves_none_of_the_graph_running(ros_prob
     (tmp_path / f"{second.name}.log").mkdir()
     begun = []
 
-    def recorded(spec, log_dir, env=None):
-        begun.append(start_node(spec, log_dir, env))
+    def recorded(spec, log_dir):
+        begun.append(start_node(spec, log_dir))
         return begun[-1]
 
     monkeypatch.setattr(processes, "start_node", recorded)

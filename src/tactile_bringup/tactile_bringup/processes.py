@@ -59,13 +59,12 @@ def report_exited(program: str, spec: NodeSpec, log_dir: Path) -> None:
     print(f"{program}: node {spec.name} exited: {log_tail(log_dir, spec)}; see {log_dir}/", file=sys.stderr)
 
 
-def start_node(spec: NodeSpec, log_dir: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+def start_node(spec: NodeSpec, log_dir: Path) -> subprocess.Popen:
     """Start one node; its output goes to `log_dir/<node name>.log`."""
     executable = Path(get_package_prefix(spec.package)) / "lib" / spec.package / spec.executable
     log_dir.mkdir(parents=True, exist_ok=True)
     with open(log_dir / f"{spec.name}.log", "w") as log:  # the child keeps its own copy of the descriptor
-        return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT,
-                                env=env)
+        return subprocess.Popen([str(executable), *spec.ros_arguments()], stdout=log, stderr=subprocess.STDOUT)
 
 
 class GraphStartError(RuntimeError):
