@@ -7,6 +7,7 @@ same way everywhere: which file, which key, what was expected, what was found.
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 import re
@@ -139,8 +140,10 @@ class YamlFields:
 
     def raw(self, key: str, default=None, required: bool = False):
         if key not in self.node:
-            if required:
-                raise self.error(f"{self.where}: missing key {key!r}")
+            if required:  # naming a key like it: `bin_col: 20` was only "missing key 'bin_cols'" (walkthrough)
+                alike = difflib.get_close_matches(key, [k for k in self.node if isinstance(k, str)], n=1, cutoff=0.8)
+                typo = f" ({alike[0]!r} is given: a typo?)" if alike else ""
+                raise self.error(f"{self.where}: missing key {key!r}{typo}")
             return default
         self._used.add(key)
         return self.node[key]
@@ -153,8 +156,13 @@ class YamlFields:
                positive: bool = False) -> float:
         value = self.raw(key, default, required=default is None)
         if not is_number(value) or not low <= value <= high or (positive and value <= 0):
-            bounds = (f"> 0 and <= {high:g}" if high < math.inf else "> 0") if positive else f"in [{low:g}, {high:g}]"
-            raise self.error(f"{self.where}.{key} must be a number {bounds}, got {value!r}")
+            if positive:
+                wanted = f"a number > 0 and <= {high:g}" if high < math.inf else "a number > 0"
+            elif math.isfinite(low) or math.isfinite(high):
+                wanted = f"a number in [{low:g}, {high:g}]"
+            else:  # "in [-inf, inf]" for yaw_deg 1e400 named no bound it broke (walkthrough)
+                wanted = "a finite number"
+            raise self.error(f"{self.where}.{key} must be {wanted}, got {value!r}")
         return float(value)
 
     def count(self, key: str, default=None, low: int = 1) -> int:

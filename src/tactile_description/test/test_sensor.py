@@ -91,6 +91,11 @@ def _broken(tmp_path, edit):
     (lambda r: r.update(name=" "), r"name must be a non-empty text, got ' '"),
     (lambda r: r["surface"].update(bin_cols=2.5), "surface.bin_cols must be an integer"),
     (lambda r: r["surface"].update(bin_colls=25), r"surface: unknown key\(s\) \['bin_colls'\]"),
+    # named neither the typo nor a bound it broke (walkthrough)
+    (lambda r: r["surface"].update(bin_col=r["surface"].pop("bin_cols")),
+     r"surface: missing key 'bin_cols' \('bin_col' is given: a typo\?\)"),
+    (lambda r: r["cameras"]["units"][0].update(yaw_deg=math.inf),
+     r"units\[0\].yaw_deg must be a finite number, got inf"),
     (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), r"gel_layers\[1\].poisson_ratio must be a number in"),
     (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan), "youngs_modulus_kpa must be a number > 0"),
     (lambda r: r["particles"].update(diameter_um=[180, 150]), "diameter_um must be \\[min, max\\]"),
