@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from tactile_description import SensorDescription
 from tactile_description.value_checks import is_whole_number
-from tactile_sim import DatasetError, Scene, Simulator, open_dataset
+from tactile_sim import DatasetError, Scene, SceneError, Simulator, open_dataset
 from tactile_sim.contact import ground_truth_model
 from tactile_sim.dataset import check_made_for
 
@@ -257,7 +257,13 @@ class SceneDraws:
         # Whether random presses find room depends on the seed: a draw that found none failed in the head phase, after
         # the end-to-end training (found in review). Checked here, before any frame is simulated.
         for k in range(1, self.draws + 1):
-            self.draw(k).check_playable(self.sensor, ground_truth_model(self.sensor))  # the simulator's default model
+            draw = self.draw(k)
+            try:
+                draw.check_playable(self.sensor, ground_truth_model(self.sensor))  # the simulator's default model
+            except SceneError as exc:  # it read as the scene's own fault, which generate and render play (walkthrough)
+                raise SceneError(f"further draw {k} of scene {self.scene.name!r} for the head phase (its seed "
+                                 f"{draw.seed}): {exc}; leave the further draws out (--head-extra-draws 0), or give "
+                                 "the random presses more room") from exc
 
     @classmethod
     def none(cls, sensor: SensorDescription) -> SceneDraws:
