@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile_description import SensorDescription
 from tactile_description.command_line import one_line
 from tactile_description.value_checks import is_number, is_whole_number
 from tactile_fusion.artifacts import (
@@ -27,6 +28,7 @@ from tactile_fusion.artifacts import (
     MODEL_JSON,
     ModelFileError,
     backend_file,
+    check_model_fits,
     default_model_dir,
     file_sha256,
     read_json_object,
@@ -103,16 +105,20 @@ def recorded_accuracy(model_dir: Path) -> tuple[dict[str, dict], list[str]]:
 
 
 def benchmark(model_dir: str | Path | None = None, runs: int = 300, warmup: int = 30,
-              threads: int | None = 1) -> dict:
+              threads: int | None = 1, sensor: SensorDescription | None = None) -> dict:
     """{backend_precision: {ms_per_frame, p90_ms, ratio_to_baseline, accuracy}} plus the setting, for one model
     directory. runs: timed calls per backend, at least 1 (ValueError otherwise). A backend and precision whose file
     is missing or damaged, or whose model overflows, is left out and listed under "failed" with the reason; the
-    baseline's failure is raised (every ratio is to it)."""
+    baseline's failure is raised (every ratio is to it). With `sensor`, a model of other cameras, bins or images is
+    refused (ModelFileError, artifacts.check_model_fits), as every other command refuses it: `tactile-fusion bench
+    --sensor` took any description, or a missing file, and timed the model (walkthrough)."""
     if not is_whole_number(runs):
         raise ValueError(f"benchmark: runs must be a whole number >= 1, got {runs!r}")
     model_dir = Path(model_dir) if model_dir is not None else default_model_dir()
     # The baseline first: a directory without a model is refused as such, not for its metrics.json (found in review).
     baseline = load_predictor(model_dir, *BASELINE.split("_"), threads)
+    if sensor is not None:
+        check_model_fits(baseline, sensor)
     accuracy, stale = recorded_accuracy(model_dir)  # a damaged metrics.json is refused before the runs
     images, reference = synthetic_frame(len(baseline.camera_ids), baseline.image_size)
     predictors, failed = {}, {}

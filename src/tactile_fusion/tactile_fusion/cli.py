@@ -425,7 +425,7 @@ def cmd_export(args) -> int:
 def cmd_bench(args) -> int:
     from tactile_fusion.bench import benchmark
 
-    report = benchmark(args.model, runs=args.runs, threads=args.threads)
+    report = benchmark(args.model, runs=args.runs, threads=args.threads, sensor=load_sensor(args.sensor))
     if args.json:
         print(json.dumps(report))
     else:

@@ -659,6 +659,9 @@ def one_camera_sensor(tmp_path) -> Path:
     ("train --frames 2 --out OUT",
      "train: error: argument --frames: must be a whole number of frames >= 3 (a train/val/test split needs 3)"),
     ("bench --runs 0", "bench: error: argument --runs: must be a whole number of runs >= 1, got '0'"),
+    # took any description, or none at all, and timed the model (walkthrough)
+    ("bench --sensor ONE_CAMERA --runs 1", "bench: error: the model is for cameras ['cam0', 'cam1', 'cam2', 'cam3']"),
+    ("bench --sensor OUT --runs 1", "bench: error: cannot read sensor description OUT"),
     ("recalibrate --add-camera nope --out OUT", "recalibrate: error: --add-camera 'nope': expected one of ['cam0'"),
     # "--add-camera 'cam0': expected one of ['cam0'] on a sensor with at least two cameras", no --add-camera given
     ("recalibrate --sensor ONE_CAMERA --out OUT", "recalibrate: error: the recalibration study adds a camera to a "
@@ -705,7 +708,7 @@ def test_bad_arguments_are_refused_with_an_error_line_before_anything_runs(capsy
                                                                       "output: {width: 100, height: 100}"))
     names = {"OUT": tmp_path / "out", "ONE_CAMERA": one_camera_sensor, "NOT_SQUARE": not_square, "ODD_SIZE": odd_size}
     message = message.replace("NOT_SQUARE", str(not_square)).replace("ODD_SIZE", str(odd_size))
-    message = message.replace("ONE_CAMERA", str(one_camera_sensor))
+    message = message.replace("ONE_CAMERA", str(one_camera_sensor)).replace("OUT", str(tmp_path / "out"))
     command, *words = [names.get(w, w) for w in args.split()]
     # Should a setting pass unchecked, train and recalibrate would only train briefly on a few frames.
     brief = ["--frames", "30", "--epochs", "1", "--head-epochs", "1", "--head-cycles", "1", *TINY]
