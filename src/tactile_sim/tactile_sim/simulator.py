@@ -16,13 +16,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_description import SensorDescription, load_sensor
+from tactile_description import SensorConfigError, SensorDescription, load_sensor
 from tactile_sim.contact import GROUND_TRUTH_MODELS, Contact, ground_truth_model
 from tactile_sim.effects import EffectChain, bind_effects
 from tactile_sim.elastic import GelDisplacement
 from tactile_sim.particles import ParticleField, generate_particles
 from tactile_sim.render import Optics, ParticleRenderer
 from tactile_sim.scene import Scene
+
+#: The fewest grey levels a camera's particles must add somewhere to its reference image: a camera that sees the gel
+#: gets 180-235 (the reference sensor's and skin_3x3's cameras), one 60 mm beside the surface or 30 mm below it 37-39,
+#: one 300 mm beside it 1.8 and one with a principal point far outside its capture 0.
+MIN_PARTICLE_CONTRAST = 10.0
 
 
 @dataclass(frozen=True)
@@ -55,10 +60,25 @@ class Simulator:
         self.sensor = sensor if sensor is not None else load_sensor()
         self.particles: ParticleField = generate_particles(self.sensor)
         self.renderer = ParticleRenderer(self.sensor, self.particles, "output", optics)
+        self._check_cameras_see_particles()
         self.ground_truth = ground_truth_model(self.sensor, ground_truth)
         self.gel = GelDisplacement(self.sensor, self.particles.positions_m)
         self._reference_u8 = quantize(self.renderer.reference.copy())
         self._reference_u8.setflags(write=False)
+
+    def _check_cameras_see_particles(self) -> None:
+        """SensorConfigError for a camera whose particles add less than MIN_PARTICLE_CONTRAST grey levels anywhere to
+        its reference image: it sees no particle, and its frames are noise. A typo in a lens or a camera's position
+        (cx 1600 for 160, a camera 300 mm beside the surface) gave blank images, a data set and a model trained on
+        them, without a word (walkthrough)."""
+        contrast = (self.renderer.reference - self.renderer.background).reshape(self.renderer.n_cameras, -1).max(1)
+        blind = [f"{cam.camera_id} ({level:.2g})" for cam, level in zip(self.sensor.cameras, contrast, strict=True)
+                 if level < MIN_PARTICLE_CONTRAST]
+        if blind:
+            raise SensorConfigError(f"{self.sensor.source}: camera(s) {', '.join(blind)} see no particle of the gel: "
+                                    "their particles add at most the grey levels in brackets to their images (the "
+                                    "reference sensor's cameras: 180 to 235); check their position_mm and yaw_deg, "
+                                    "and the lens (fx, fy, cx, cy in capture pixels, distortion)")
 
     @property
     def camera_ids(self) -> tuple[str, ...]:

@@ -127,6 +127,25 @@ def test_the_nine_camera_skin_renders_and_streams():
     assert max(changed) > 1000
 
 
+def test_a_camera_that_sees_no_particle_is_refused_naming_it():
+    """A lens typo (cx 1600 for 160) or a camera far beside the surface gave blank images, and a data set and a model
+    trained on them, without a word (walkthrough)."""
+    import dataclasses
+
+    from tactile_description import SensorConfigError
+
+    sensor = load_sensor()
+    far = dataclasses.replace(sensor.cameras[2], position_m=(0.3, 0.01, sensor.cameras[2].position_m[2]))
+    beside = dataclasses.replace(sensor, cameras=(*sensor.cameras[:2], far, sensor.cameras[3]))
+    with pytest.raises(SensorConfigError, match=r"camera\(s\) cam2 \(1.\d\) see no particle of the gel: .*check their "
+                                                r"position_mm and yaw_deg, and the lens"):
+        Simulator(beside)
+    lens = dataclasses.replace(sensor.cameras[0].lens, cx=1600.0)
+    off_centre = dataclasses.replace(sensor, cameras=tuple(dataclasses.replace(c, lens=lens) for c in sensor.cameras))
+    with pytest.raises(SensorConfigError, match=r"camera\(s\) cam0 \(0\), cam1 \(0\), cam2 \(0\), cam3 \(0\) see no"):
+        Simulator(off_centre)
+
+
 def test_unknown_ground_truth_model_is_refused():
     with pytest.raises(ValueError, match="unknown ground-truth model"):
         Simulator(load_sensor(), ground_truth="magic")
