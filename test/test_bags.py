@@ -144,3 +144,21 @@ def test_a_best_effort_topic_outside_the_stack_is_recorded(ros_probe, tmp_path):
     with BagReader(tmp_path / "bag") as bag:
         assert bag.topics == {"/foreign_best_effort": "std_msgs/msg/String"}
         assert sum(1 for _ in bag.messages(["/foreign_best_effort"])) >= 10
+
+
+def test_record_names_the_image_topics_of_other_cameras_when_its_own_are_silent(ros_probe, tmp_path):
+    """A graph of other camera ids recorded with the default description: 0 images and no hint (walkthrough)."""
+    renamed = tmp_path / "renamed.yaml"
+    renamed.write_text(default_sensor_path().read_text().replace("{id: cam", "{id: c"))
+    camera = start_node(NodeSpec("tactile_camera_driver", "sim_camera_node", "renamed_cameras",
+                                 {"sensor_config": str(renamed)}), tmp_path / "logs")
+    try:
+        assert spin_until(ros_probe, lambda: ros_probe.count_publishers("/tactile/c3/image"), 30.0)
+        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--wait", "3", "--topics",
+                               "/tactile/cam0/image", "/tactile/cam1/image")
+    finally:
+        stop_nodes([camera])
+    assert recorded.returncode == 1, recorded.stderr
+    assert (f"tactile-bag record: images are published on /tactile/c0/image, /tactile/c1/image, /tactile/c2/image, "
+            f"/tactile/c3/image, not recorded: the cameras of another sensor description than "
+            f"{default_sensor_path()}? (--sensor FILE)") in recorded.stderr

@@ -22,7 +22,7 @@ import rclpy
 from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, check_fits, evaluate_bag
 from tactile_bag.play import MIN_RATE, play
 from tactile_bag.record import record
-from tactile_bag.topics import absolute_topic, default_record_topics, stack_topics
+from tactile_bag.topics import IMAGE_TYPE, absolute_topic, default_record_topics, stack_topics
 from tactile_conversions.stop_signals import init_ros, stopped_by_signal
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
@@ -63,6 +63,10 @@ def cmd_record(args) -> int:
           f"{args.out}: "
           + ", ".join(f"{t} {n}" for t, n in counts.items())
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
+    silent_images = [t for t in silent if stack_topics(sensor).get(t) == IMAGE_TYPE]
+    if silent_images and recording.other_images:
+        print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: the "
+              f"cameras of another sensor description than {sensor.source}? (--sensor FILE)", file=sys.stderr)
     if not total and recording.stopped:  # not "no message within --wait": that had not run out (found in review)
         print("tactile-bag record: stopped before any message arrived", file=sys.stderr)
     elif not total:

@@ -19,7 +19,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from tactile_bag.bagfile import BagError, BagWriter
 from tactile_bag.message_types import MessageTypeError, message_class
-from tactile_bag.topics import RELIABLE_DEPTH, absolute_topic, qos_profile
+from tactile_bag.topics import IMAGE_TYPE, RELIABLE_DEPTH, absolute_topic, qos_profile
 from tactile_conversions.stop_signals import until_stop_signal
 from tactile_description.command_line import stop_signals_ignored
 from tactile_description.value_checks import is_number
@@ -84,6 +84,15 @@ def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]
 class Recording:
     counts: dict[str, int]  # messages per topic
     stopped: bool           # by SIGINT or SIGTERM, before its duration (or its wait for a first message) ran out
+    other_images: tuple[str, ...] = ()  # image topics the graph showed meanwhile that were not recorded
+
+
+def other_image_topics(node: Node, recorded: Sequence[str]) -> tuple[str, ...]:
+    """The image topics `node` sees in the graph that are not among `recorded`: those of cameras of another sensor
+    description, when the recording's were silent (a graph of cameras 'left' and 'right' recorded with the default
+    description's cam0-cam3 gave 0 images and no hint; walkthrough)."""
+    return tuple(sorted(topic for topic, types in node.get_topic_names_and_types()
+                        if IMAGE_TYPE in types and topic not in recorded))
 
 
 def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], duration_s: float,
@@ -124,8 +133,9 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
                     if left_s <= 0:
                         break
                     rclpy.spin_once(recorder, timeout_sec=min(0.1, left_s))
+                other_images = other_image_topics(recorder, topics)
             finally:
                 recorder.destroy_node()
         with stop_signals_ignored():  # an impatient second Ctrl-C would leave the bag without its index: unreadable
             bag.close()
-        return Recording(dict(bag.counts), stop.signalled)
+        return Recording(dict(bag.counts), stop.signalled, other_images)
