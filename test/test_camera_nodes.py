@@ -270,7 +270,7 @@ def test_the_bundle_node_logs_drops_at_once_then_at_most_every_drop_log_period(r
 
 @pytest.mark.system
 def test_the_simulated_cameras_play_from_the_first_frame_once_subscribed_then_say_once_that_the_scene_ended(
-        collect, tmp_path):
+        collect, lossless_image_qos, tmp_path):
     """8 frames, loop false: nothing is played while nobody listens (the scene ran on while DDS discovery connected
     the bundle node, and under load the reference frames were taken during a press: found in review), then all 8."""
     scene = tmp_path / "short.yaml"
@@ -282,7 +282,7 @@ def test_the_simulated_cameras_play_from_the_first_frame_once_subscribed_then_sa
         wait_for_log(tmp_path / "sim_once.log", "simulating scene", timeout_s=20.0)
         time.sleep(1.0)  # 40 frame periods: the scene would have ended unheard
         unheard = (tmp_path / "sim_once.log").read_text()
-        images = collect(Image, "/tactile/cam0/image", seconds=20.0, qos=qos_profile_sensor_data,
+        images = collect(Image, "/tactile/cam0/image", seconds=20.0, qos=lossless_image_qos,
                          until=lambda received: len(received) >= 8)
         wait_for_log(tmp_path / "sim_once.log", "ended", timeout_s=20.0)
         after_the_end = collect(Image, "/tactile/cam0/image", seconds=0.5, qos=qos_profile_sensor_data)
@@ -326,7 +326,9 @@ def test_the_simulated_scene_waits_for_the_nodes_of_wait_for_nodes_and_loses_non
 
 
 @pytest.mark.system
-def test_an_image_subscriber_that_came_first_does_not_start_the_scene_before_the_bundle_node(ros_probe, tmp_path):
+def test_an_image_subscriber_that_came_first_does_not_start_the_scene_before_the_bundle_node(ros_probe,
+                                                                                           lossless_image_qos,
+                                                                                           tmp_path):
     """A bag recorder started before the demo subscribed to the images at once, and the scene played while DDS
     discovery took 2.4 s to connect the bundle node: the fusion node's reference showed a press (found in review, 1
     of 7 runs). Here the probe is the recorder; the bundle node starts 1 s after the scene could have played. Bundle k
@@ -335,7 +337,7 @@ def test_an_image_subscriber_that_came_first_does_not_start_the_scene_before_the
     scene = tmp_path / "rest.yaml"
     scene.write_text("name: rest\nseed: 1\ntimeline:\n  - rest: {frames: 80}\n")
     images, bundles = [], []
-    ros_probe.create_subscription(Image, "/tactile/cam0/image", images.append, qos_profile_sensor_data)
+    ros_probe.create_subscription(Image, "/tactile/cam0/image", images.append, lossless_image_qos)
     ros_probe.create_subscription(ImageBundle, "/tactile/image_bundle", bundles.append, 100)
     processes = [start_node(NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
                                      {"sensor_config": CONFIG, "scene": str(scene), "loop": False, "rate_hz": 40,

@@ -121,7 +121,7 @@ def test_a_graph_tool_that_overruns_its_test_takes_its_nodes_with_it(run_graph_t
         pytest.fail("the tool's node outlived the tool")
 
 
-def test_a_ctrl_c_while_the_nodes_are_stopped_does_not_leave_the_rest_running():
+def test_a_ctrl_c_while_the_nodes_are_stopped_does_not_leave_the_rest_running(stop_signals_fail_the_test):
     """tactile-demo and tactile-latency stop their nodes one at a time; a second Ctrl-C (or SIGTERM) meanwhile raised
     KeyboardInterrupt out of stop_nodes, and the nodes not yet stopped ran on, adopted by init (found in review).
     Stand-ins for nodes that take a second to exit after their SIGINT."""

@@ -76,13 +76,19 @@ def test_once_imported_the_main_runs_with_pythons_handlers_and_its_status_is_the
     assert process.communicate(timeout=30)[1] == "" and process.returncode == 7
 
 
-#: A module whose main returns 0 and whose process then takes 1 s to end (as the teardown of torch takes tenths of a
-#: second), saying when that has begun.
+#: A module whose main returns 0 and whose process then ends only once the test has sent its signals (as the teardown
+#: of torch takes tenths of a second), saying when that has begun.
 ENDING_MODULE = '''
 import atexit, pathlib, sys, time
 
+def ending():
+    pathlib.Path(sys.argv[1]).touch()
+    signalled, deadline = pathlib.Path(sys.argv[1]).with_name("signalled"), time.monotonic() + 30
+    while not signalled.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
 def main():
-    atexit.register(lambda: (pathlib.Path(sys.argv[1]).touch(), time.sleep(1.0)))
+    atexit.register(ending)
     return 0
 '''
 
@@ -94,8 +100,12 @@ def test_a_stop_signal_once_the_main_has_returned_is_ignored(tmp_path):
     deadline = time.monotonic() + 30
     while not (tmp_path / "importing").exists() and time.monotonic() < deadline:
         time.sleep(0.02)
+    # A handshake: the process ends only once told that both signals were sent (a fixed wait of 1 s let a process
+    # that did not ignore them pass, when the signals came late on a loaded machine; found in an audit).
+    assert (tmp_path / "importing").exists() and process.poll() is None
     process.send_signal(signal.SIGINT)
     process.send_signal(signal.SIGTERM)
+    (tmp_path / "signalled").touch()
     assert process.communicate(timeout=30) == ("", "") and process.returncode == 0
 
 

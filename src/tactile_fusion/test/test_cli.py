@@ -193,7 +193,8 @@ def test_bench_leaves_out_a_backend_that_cannot_run_and_times_the_others(tiny_mo
     assert result.returncode == 2 and "model.onnx is missing" in result.stderr and not result.stdout
 
 
-def test_a_stop_during_export_says_the_graphs_may_be_incomplete(tiny_model, tmp_path, monkeypatch, capsys):
+def test_a_stop_during_export_says_the_graphs_may_be_incomplete(tiny_model, tmp_path, monkeypatch, capsys,
+                                                                 stop_signals_fail_the_test):
     """The int8 graph is removed before it is written again: a stop then left it missing without a word (walkthrough).
     The signal is sent to this process as the int8 graph is quantized."""
     from tactile_fusion import pipeline
@@ -563,7 +564,8 @@ def test_a_sigterm_while_train_simulates_ends_it_in_one_line_and_removes_the_new
     assert "Traceback" not in result.stderr and not (tmp_path / "new").exists()
 
 
-def test_a_stop_while_train_deletes_its_checkpoints_waits_for_the_last(tmp_path, monkeypatch):
+def test_a_stop_while_train_deletes_its_checkpoints_waits_for_the_last(tmp_path, monkeypatch,
+                                                                      stop_signals_fail_the_test):
     """The training has finished; a SIGTERM between the deletions of two checkpoints left the others behind, and the
     stop's message offered them to --resume. The signal is sent to this process as the first checkpoint goes."""
     from tactile_fusion.cli import main

@@ -1,0 +1,25 @@
+"""Fixtures for every test of the repository (src/*/test and test/): pytest applies a conftest.py in its rootdir to
+all tests beneath it."""
+
+import signal
+
+import pytest
+
+
+class StopSignalReachedTheTest(AssertionError):
+    """A SIGINT or SIGTERM that a test sent its own process for the code under test to handle reached the test."""
+
+
+@pytest.fixture
+def stop_signals_fail_the_test():
+    """For tests that send SIGINT or SIGTERM to their own process for the code under test to handle: should that code
+    not handle it, the test fails naming the signal, where Python's default handlers would end pytest (SIGTERM) or
+    the whole session (SIGINT) without a report naming the test (found in an audit of the tests)."""
+    def reached(number, _frame):
+        raise StopSignalReachedTheTest(f"{signal.Signals(number).name} reached the test: the code under test did not "
+                                       "handle it")
+
+    previous = {number: signal.signal(number, reached) for number in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for number, handler in previous.items():
+        signal.signal(number, handler)
