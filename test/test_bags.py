@@ -155,8 +155,9 @@ def test_record_names_the_image_topics_of_other_cameras_when_its_own_are_silent(
                                  {"sensor_config": str(renamed)}), tmp_path / "logs")
     try:
         assert spin_until(ros_probe, lambda: ros_probe.count_publishers("/tactile/c3/image"), 30.0)
-        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--wait", "3", "--topics",
-                               "/tactile/cam0/image", "/tactile/cam1/image")
+        # --wait: the recorder's own discovery of all four publishers takes seconds on a loaded machine
+        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--wait", "10", "--topics",
+                               "/tactile/cam0/image", "/tactile/cam1/image", timeout_s=60.0)
     finally:
         stop_nodes([camera])
     assert recorded.returncode == 1, recorded.stderr

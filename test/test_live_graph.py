@@ -78,7 +78,9 @@ def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(ros_domain, run_g
     assert demo.returncode == 0, demo.stderr + logs
     summary = json.loads(demo.stdout.strip().splitlines()[-1])
     assert summary["contract_violations"] == []
-    assert 15.0 <= summary["duration_s"] < 16.0, summary  # the graph's run: the nodes' shutdown counted too (1 s)
+    # The graph's run, without the nodes' shutdown (about 1 s; counted before: 9.02 s for --duration 8), plus up to 1 s
+    # for the run loop's last turn on a loaded machine.
+    assert 15.0 <= summary["duration_s"] < 16.0, summary
     assert summary["estimates"] > 100 and summary["matched_with_ground_truth"] > 100, summary
     assert summary["missing_camera_ids"] == []
     # Every estimate names what the shipped model estimates (Fz only: it was trained on vertical presses).

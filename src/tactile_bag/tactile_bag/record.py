@@ -67,16 +67,17 @@ def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str]
 
 def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]) -> dict[str, QoSProfile]:
     """topic -> the QoS to record it with: the live graph's for the stack's topics (topics.qos_profile); for another
-    topic, best effort where one of its publishers offers no more, which a reliable subscription does not match
-    (a best-effort publisher outside the stack was recorded with 0 messages, and the tool asked whether the graph
-    was running; found in review)."""
+    topic, reliable where every publisher seen offers that, else best effort: where one offers no more, which a
+    reliable subscription does not match (a best-effort publisher outside the stack was recorded with 0 messages, and
+    the tool asked whether the graph was running; found in review), and where none is seen yet (the type came from a
+    subscriber), since best effort takes either kind of publisher."""
     qos = {}
     for topic, msgtype in topic_types.items():
         offered = [] if topic in known else node.get_publishers_info_by_topic(topic)
-        if any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in offered):
-            qos[topic] = QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
-        else:
-            qos[topic] = qos_profile(msgtype)
+        reliable = topic in known or offered and all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                                                     for p in offered)
+        qos[topic] = qos_profile(msgtype) if reliable else QoSProfile(depth=RELIABLE_DEPTH,
+                                                                      reliability=ReliabilityPolicy.BEST_EFFORT)
     return qos
 
 
@@ -91,8 +92,8 @@ def other_image_topics(node: Node, recorded: Sequence[str]) -> tuple[str, ...]:
     """The image topics `node` sees in the graph that are not among `recorded`: those of cameras of another sensor
     description, when the recording's were silent (a graph of cameras 'left' and 'right' recorded with the default
     description's cam0-cam3 gave 0 images and no hint; walkthrough)."""
-    return tuple(sorted(topic for topic, types in node.get_topic_names_and_types()
-                        if IMAGE_TYPE in types and topic not in recorded))
+    return tuple(sorted(topic for topic, types in node.get_topic_names_and_types()  # subscribers' topics too:
+                        if IMAGE_TYPE in types and topic not in recorded and node.count_publishers(topic)))
 
 
 def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], duration_s: float,

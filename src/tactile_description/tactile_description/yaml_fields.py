@@ -141,7 +141,8 @@ class YamlFields:
     def raw(self, key: str, default=None, required: bool = False):
         if key not in self.node:
             if required:  # naming a key like it: `bin_col: 20` was only "missing key 'bin_cols'" (walkthrough)
-                alike = difflib.get_close_matches(key, [k for k in self.node if isinstance(k, str)], n=1, cutoff=0.8)
+                unread = [k for k in self.node if isinstance(k, str) and k not in self._used]  # not a valid key read
+                alike = difflib.get_close_matches(key, unread, n=1, cutoff=0.8)
                 typo = f" ({alike[0]!r} is given: a typo?)" if alike else ""
                 raise self.error(f"{self.where}: missing key {key!r}{typo}")
             return default
@@ -156,11 +157,12 @@ class YamlFields:
                positive: bool = False) -> float:
         value = self.raw(key, default, required=default is None)
         if not is_number(value) or not low <= value <= high or (positive and value <= 0):
+            # "finite" said first: "in [-inf, inf], got inf" for yaw_deg 1e400 named no bound it broke (walkthrough)
             if positive:
-                wanted = f"a number > 0 and <= {high:g}" if high < math.inf else "a number > 0"
+                wanted = f"a finite number > 0 and <= {high:g}" if high < math.inf else "a finite number > 0"
             elif math.isfinite(low) or math.isfinite(high):
-                wanted = f"a number in [{low:g}, {high:g}]"
-            else:  # "in [-inf, inf]" for yaw_deg 1e400 named no bound it broke (walkthrough)
+                wanted = f"a finite number in [{low:g}, {high:g}]"
+            else:
                 wanted = "a finite number"
             raise self.error(f"{self.where}.{key} must be {wanted}, got {value!r}")
         return float(value)

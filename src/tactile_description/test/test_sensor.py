@@ -75,12 +75,12 @@ def _broken(tmp_path, edit):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda r: r["surface"].pop("bin_rows"), "surface: missing key 'bin_rows'"),
-    (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be a number > 0"),
+    (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be a finite number > 0"),
     # the camera nodes refused it as their rate_hz parameter, which the user had not set
-    (lambda r: r["cameras"].update(frame_rate_hz=2000), "cameras.frame_rate_hz must be a number in "
+    (lambda r: r["cameras"].update(frame_rate_hz=2000), "cameras.frame_rate_hz must be a finite number in "
                                                         r"\[1.15741e-05, 1000\], got 2000"),
     # loaded, then refused by the camera nodes as their rate_hz, which the user had not set (code review)
-    (lambda r: r["cameras"].update(frame_rate_hz=1e-6), "cameras.frame_rate_hz must be a number in "
+    (lambda r: r["cameras"].update(frame_rate_hz=1e-6), "cameras.frame_rate_hz must be a finite number in "
                                                         r"\[1.15741e-05, 1000\], got 1e-06"),
     # OverflowError rounding an infinite particle count: a traceback from every node and command (code review)
     (lambda r: r["particles"].update(per_mm3=1e300), "particles.per_mm3 = inf puts inf particles in the 7497 mm"),
@@ -96,8 +96,12 @@ def _broken(tmp_path, edit):
      r"surface: missing key 'bin_cols' \('bin_col' is given: a typo\?\)"),
     (lambda r: r["cameras"]["units"][0].update(yaw_deg=math.inf),
      r"units\[0\].yaw_deg must be a finite number, got inf"),
-    (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5), r"gel_layers\[1\].poisson_ratio must be a number in"),
-    (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan), "youngs_modulus_kpa must be a number > 0"),
+    (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5),
+     r"gel_layers\[1\].poisson_ratio must be a finite number in"),
+    (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan),
+     "youngs_modulus_kpa must be a finite number > 0"),
+    # inside the stated bounds, infinity was "in [0, inf], got inf" (review)
+    (lambda r: r["surface"].update(length_mm=math.inf), "surface.length_mm must be a finite number > 0, got inf"),
     (lambda r: r["particles"].update(diameter_um=[180, 150]), "diameter_um must be \\[min, max\\]"),
     (lambda r: r["particles"].update(layer="nowhere"), "no gel layer named 'nowhere'"),
     (lambda r: r["cameras"]["units"][1].update(id="cam0"), "camera ids must be unique"),

@@ -184,6 +184,6 @@ def test_unusable_paths_unsafe_names_and_huge_counts_get_one_line_and_status_2(t
     crowded = tmp_path / "crowded.yaml"  # an OverflowError checking that the contacts fit, a directory left behind
     crowded.write_text("name: crowded\nseed: 1\ntimeline: [{random_presses: {frames: 3, depth_mm: 1, "
                        "min_separation_mm: 1.0e+199}}]\n")
-    assert "min_separation_mm must be a number in [0, 1000]" in refused(
+    assert "min_separation_mm must be a finite number in [0, 1000]" in refused(
         "generate", "--scene", str(crowded), "--out", str(tmp_path / "c"))
     assert not (tmp_path / "c").exists()

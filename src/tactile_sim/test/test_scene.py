@@ -172,7 +172,8 @@ def _scene(**overrides):
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": [1.0, 0.5]}}]), "min <= max"),
     (_scene(timeline=[{"press_grid": {"cols": 1, "rows": 1, "depth_mm": [0.1, 0.2], "depths_per_position": 1,
                                       "shear_mm": [1.0, 0.5]}}]), "shear_mm.*min <= max"),
-    (_scene(indenter={"shape": "sphere", "diameter_mm": 400}), r"indenter.diameter_mm must be a number in \[0.1, 100"),
+    (_scene(indenter={"shape": "sphere", "diameter_mm": 400}),
+     r"indenter.diameter_mm must be a finite number in \[0.1, 100"),
     (yaml.safe_load("{name: t, seed: 1, timeline: [{path: {frames: 4, depth_mm: 1, waypoints_mm: [[0, .nan], [9, 9]]}}"
                     "]}"),
      r"timeline\[0\].path.waypoints_mm must list at least two \[x, y\] points \(finite numbers"),
@@ -190,11 +191,15 @@ def _scene(**overrides):
      r"'frames' must be \[first, stop\) frame indices with 0 <= first < stop <= 10000000"),
     (_scene(effects=[{"type": "illumination_drift", "period_s": 1e-310}]), r"'period_s' must be a number >= 0.001"),
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "min_separation_mm": 1e199}}]),
-     r"min_separation_mm must be a number in \[0, 1000\]"),
+     r"min_separation_mm must be a finite number in \[0, 1000\]"),
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "region": "edges",
                                           "edge_band_mm": [-1e200, 0]}}]), r"edge_band_mm .* within \+-1000 mm"),
     (_scene(timeline=[{"press": {"x_mm": 1, "y_mm": 2, "depths_mm": [1], "friction": 1e20}}]),
-     r"friction must be a number in \[0, 10\]"),
+     r"friction must be a finite number in \[0, 10\]"),
+    # a key read already is no typo: "missing key 'y_fraction' ('x_fraction' is given: a typo?)" (review)
+    (_scene(timeline=[{"press": {"x_fraction": 0.5, "depths_mm": [1]}}]), r"press: missing key 'y_fraction'$"),
+    (_scene(timeline=[{"press": {"x_fraction": 0.5, "y_fractoin": 0.5, "depths_mm": [1]}}]),
+     r"press: missing key 'y_fraction' \('y_fractoin' is given: a typo\?\)"),
 ])
 def test_bad_scenes_get_clear_errors(raw, message):
     with pytest.raises(SceneError, match=message):
