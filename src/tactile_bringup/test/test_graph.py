@@ -1,4 +1,5 @@
 import ast
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +88,15 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     functions = {node.name for node in ast.walk(tree) if isinstance(node, ast.FunctionDef)}
     assert "generate_launch_description" in functions
     assert "from tactile_bringup.graph import sensor_graph" in source
+    # Its call of sensor_graph gives each launch argument to the parameter of that name (checked against the
+    # signature, so that reordering the parameters cannot go unnoticed; found in an audit of the tests).
+    call = next(node for node in ast.walk(tree) if isinstance(node, ast.Call)
+                and getattr(node.func, "id", None) == "sensor_graph")
+    given = [arg.slice.value if isinstance(arg, ast.Subscript) else arg.id for arg in call.args]
+    parameters = list(inspect.signature(sensor_graph).parameters)
+    assert len(given) == len(parameters) and not call.keywords
+    expected = {"sensor": "sensor", "camera_sources_file": "camera_sources"}
+    assert given == [expected.get(name, name) for name in parameters], given
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
 

@@ -96,7 +96,9 @@ def test_a_camera_timeout_longer_than_a_day_is_refused_naming_the_parameter(monk
     rclpy.init(args=["--ros-args", "-p", f"camera_timeout_s:={value}"])
     try:
         if accepted:
-            BundleNode().destroy_node()
+            node = BundleNode()
+            assert node.camera_timeout_s == 86400.0
+            node.destroy_node()
         else:
             with pytest.raises(ValueError, match="tactile_bundle: parameter camera_timeout_s must be at most 86400 s "
                                                  r"\(one day\), got 1000000000000.0"):

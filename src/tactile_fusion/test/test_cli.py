@@ -759,12 +759,18 @@ def test_eval_of_a_dataset_takes_its_first_frames_shows_progress_and_plots_the_s
     out, _ = tiny_model
     sensor = load_sensor(CONFIG / "sensor.yaml")
     data = write_dataset(Simulator(sensor), load_scene("shear", sensor), tmp_path / "data", progress=False, frames=6)
-    plotted = []
-    monkeypatch.setattr(plots, "plot_fz_maps", lambda *args, **kwargs: plotted.append(kwargs["bin_size_mm"]))
+    plotted, plot = [], plots.plot_fz_maps
+
+    def plotted_too(*args, **kwargs):  # the figure drawn for real (it was replaced; found in an audit of the tests)
+        plotted.append(kwargs["bin_size_mm"])
+        return plot(*args, **kwargs)
+
+    monkeypatch.setattr(plots, "plot_fz_maps", plotted_too)
     assert main(["eval", "--model", str(out), "--dataset", str(data), "--frames", "4", "--out", str(tmp_path / "eval"),
                  "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["data_sets"]["dataset data"]["frames"] == 4
     assert plotted == [pytest.approx((49.0 / 25, 51.0 / 26))]  # a bin of the sensor's grid, in millimetres
+    assert (tmp_path / "eval" / "fz_map_dataset_data.png").stat().st_size > 0
     assert main(["eval", "--model", str(out), "--dataset", str(data), "--frames", "2"]) == 0
     assert "evaluate shear" in capsys.readouterr().err  # the progress bar, unless --quiet or --json
     assert "--split applies to --scene only" in refusal(capsys, "eval", "--model", out, "--dataset", data, "--split",

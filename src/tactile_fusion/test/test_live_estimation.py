@@ -72,6 +72,19 @@ def test_a_reference_needs_a_frame():
             ReferenceFrames(4, (128, 128), count=count)
 
 
+def test_the_mismatch_level_is_the_75th_percentile_of_the_difference_in_grey_levels():
+    """Hand-made cases (the expected value was the implementation's own expression before; found in an audit): half
+    the pixels 5 grey levels brighter, half 5 darker keep the brightness (gain 1), so every pixel differs by 5; a
+    camera equal to its reference gives 0; a quarter of the pixels 40 levels brighter raise the gain to
+    (48 x 100 + 16 x 140) / (64 x 100) = 1.1, so the other three quarters read 100 / 1.1 - 100 = -9.09 and the
+    bright quarter 140 / 1.1 - 100 = +27.3: 9.09 at the 75th percentile."""
+    reference = np.full((3, 8, 8), 100, np.uint8)
+    images = reference.copy()
+    images[0] = np.where(np.indices((8, 8)).sum(axis=0) % 2 == 0, 105, 95)
+    images[2, :2] = 140  # 16 of 64 pixels
+    np.testing.assert_allclose(mismatch_levels(images, reference), [5.0, 0.0, 100 - 100 / 1.1], atol=1e-4)
+
+
 def test_the_reference_knows_how_far_its_own_frames_lie_from_it():
     """The level of sensor noise (sigma 2 grey levels) at the 75th percentile, 1.15 sigma, a little less because
     each frame is part of the mean."""
