@@ -126,6 +126,7 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
     with BagWriter(out) as bag:
         recorder = Recorder(bag, topic_types, qos)
         give_up = time.monotonic() + wait_s
+        other_images: tuple[str, ...] = ()  # none named after a stop: rclpy's context may be shut down by then
         with until_stop_signal() as stop:
             try:
                 while True:
