@@ -141,7 +141,7 @@ class YamlFields:
     def raw(self, key: str, default=None, required: bool = False):
         if key not in self.node:
             if required:  # naming a key like it: `bin_col: 20` was only "missing key 'bin_cols'" (walkthrough)
-                unread = [k for k in self.node if isinstance(k, str) and k not in self._used]  # not a valid key read
+                unread = [k for k in self.node if isinstance(k, str) and k not in self._used]  # those read are known
                 alike = difflib.get_close_matches(key, unread, n=1, cutoff=0.8)
                 typo = f" ({alike[0]!r} is given: a typo?)" if alike else ""
                 raise self.error(f"{self.where}: missing key {key!r}{typo}")
@@ -160,8 +160,10 @@ class YamlFields:
             # "finite" said first: "in [-inf, inf], got inf" for yaw_deg 1e400 named no bound it broke (walkthrough)
             if positive:
                 wanted = f"a finite number > 0 and <= {high:g}" if high < math.inf else "a finite number > 0"
-            elif math.isfinite(low) or math.isfinite(high):
+            elif math.isfinite(low) and math.isfinite(high):
                 wanted = f"a finite number in [{low:g}, {high:g}]"
+            elif math.isfinite(low) or math.isfinite(high):  # one bound: "in [0, inf], got inf" (review)
+                wanted = f"a finite number >= {low:g}" if math.isfinite(low) else f"a finite number <= {high:g}"
             else:
                 wanted = "a finite number"
             raise self.error(f"{self.where}.{key} must be {wanted}, got {value!r}")

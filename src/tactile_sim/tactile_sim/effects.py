@@ -414,7 +414,7 @@ def _effect_value(kind: str, key: str, value, where: str):
             raise SceneError(f"{here} must be {expected}, got {value!r}")
         return (float(value[0]), float(value[1]))
     if not is_number(value) or not check(value):
-        raise SceneError(f"{here} must be a number {expected}, got {value!r}")
+        raise SceneError(f"{here} must be a finite number {expected}, got {value!r}")
     return float(value)
 
 

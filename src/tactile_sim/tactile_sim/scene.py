@@ -146,9 +146,12 @@ def _place(n: YamlFields) -> Place:
     if mm == fraction:
         raise SceneError(f"{n.where}: " + ("give x_mm and y_mm, or x_fraction and y_fraction, not a mix of the two"
                                            if mm else "missing its place: x_mm and y_mm, or x_fraction and y_fraction"))
+    x, y = ("x_fraction", "y_fraction") if fraction else ("x_mm", "y_mm")
+    if not (n.has(x) and n.has(y)):  # with y alone, the typo hint named it for a missing x (review)
+        raise SceneError(f"{n.where}: give both {x} and {y}")
     if fraction:
-        return Place(n.number("x_fraction"), n.number("y_fraction"), fraction=True)
-    return Place(n.number("x_mm") * MM, n.number("y_mm") * MM, fraction=False)
+        return Place(n.number(x), n.number(y), fraction=True)
+    return Place(n.number(x) * MM, n.number(y) * MM, fraction=False)
 
 
 def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:

@@ -158,7 +158,7 @@ def _scene(**overrides):
     (_scene(effects=[{"type": "lens_flare"}]), "unknown effect type 'lens_flare'"),
     (_scene(effects=[{"type": []}]), r"unknown effect type \[\]"),  # a TypeError before
     (_scene(effects=[{"type": "sensor_noise", "sigmaa": 1}]), "has no key 'sigmaa'"),
-    (_scene(effects=[{"type": "sensor_noise", "sigma": -1}]), r"'sigma' must be a number in \(0, 255\]"),
+    (_scene(effects=[{"type": "sensor_noise", "sigma": -1}]), r"'sigma' must be a finite number in \(0, 255\]"),
     (_scene(effects=[{"type": "camera_dropout"}]), "needs 'cameras'"),
     (_scene(effects=[{"type": "camera_dropout", "cameras": ["cam0"], "frames": [5, 2]}]), "first < stop"),
     (_scene(effects=[{"type": "camera_dropout", "cameras": ["cam0"], "mode": "grey"}]), "'black' or 'frozen'"),
@@ -184,22 +184,30 @@ def _scene(**overrides):
     (_scene(name="../x"), "name must be a file name"),
     (_scene(timeline=[{"rest": {"frames": 6_000_000}}, {"rest": {"frames": 6_000_000}}]),
      r"timeline\[1\].rest: the scene reaches 12000000 frames here, more than 10000000"),
-    (_scene(effects=[{"type": "sensor_noise", "sigma": 1e300}]), r"'sigma' must be a number in \(0, 255\]"),
+    (_scene(effects=[{"type": "sensor_noise", "sigma": 1e300}]), r"'sigma' must be a finite number in \(0, 255\]"),
     # Found in review: an OverflowError binding the effect (a half-written data set), sin(inf) = NaN in the images,
     # an OverflowError in the check that the contacts fit, no side force at a friction of 1e20
     (_scene(effects=[{"type": "reference_drift", "frames": [10**400, 10**400 + 1]}]),
      r"'frames' must be \[first, stop\) frame indices with 0 <= first < stop <= 10000000"),
-    (_scene(effects=[{"type": "illumination_drift", "period_s": 1e-310}]), r"'period_s' must be a number >= 0.001"),
+    (_scene(effects=[{"type": "illumination_drift", "period_s": 1e-310}]),
+     r"'period_s' must be a finite number >= 0.001"),
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "min_separation_mm": 1e199}}]),
      r"min_separation_mm must be a finite number in \[0, 1000\]"),
     (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "region": "edges",
                                           "edge_band_mm": [-1e200, 0]}}]), r"edge_band_mm .* within \+-1000 mm"),
     (_scene(timeline=[{"press": {"x_mm": 1, "y_mm": 2, "depths_mm": [1], "friction": 1e20}}]),
      r"friction must be a finite number in \[0, 10\]"),
-    # a key read already is no typo: "missing key 'y_fraction' ('x_fraction' is given: a typo?)" (review)
-    (_scene(timeline=[{"press": {"x_fraction": 0.5, "depths_mm": [1]}}]), r"press: missing key 'y_fraction'$"),
-    (_scene(timeline=[{"press": {"x_fraction": 0.5, "y_fractoin": 0.5, "depths_mm": [1]}}]),
-     r"press: missing key 'y_fraction' \('y_fractoin' is given: a typo\?\)"),
+    # the other coordinate is no typo: "missing key 'x_fraction' ('y_fraction' is given: a typo?)" (review)
+    (_scene(timeline=[{"press": {"x_fraction": 0.5, "depths_mm": [1]}}]), "press: give both x_fraction and y_fraction"),
+    (_scene(timeline=[{"press": {"y_fraction": 0.5, "depths_mm": [1]}}]), "press: give both x_fraction and y_fraction"),
+    (_scene(timeline=[{"press": {"x_mm": 5, "depths_mm": [1]}}]), r"press: give both x_mm and y_mm"),
+    # a key like a missing one may be a typo of it
+    (_scene(timeline=[{"press_grid": {"cols": 2, "rows": 2, "deptth_mm": [0.1, 1.0], "depths_per_position": 1}}]),
+     r"missing key 'depth_mm' \('deptth_mm' is given: a typo\?\)"),
+    # one bound: "in [0, inf], got inf" (review)
+    (_scene(timeline=[{"press_grid": {"cols": 2, "rows": 2, "depth_mm": [0.1, 1.0], "depths_per_position": 1,
+                                      "margin_mm": float("inf")}}]),
+     r"margin_mm must be a finite number >= 0, got inf"),
 ])
 def test_bad_scenes_get_clear_errors(raw, message):
     with pytest.raises(SceneError, match=message):
