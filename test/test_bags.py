@@ -164,3 +164,17 @@ def test_record_names_the_image_topics_of_other_cameras_when_its_own_are_silent(
     assert (f"tactile-bag record: images are published on /tactile/c0/image, /tactile/c1/image, /tactile/c2/image, "
             f"/tactile/c3/image, not recorded: the cameras of another sensor description than "
             f"{default_sensor_path()}? (--sensor FILE)") in recorded.stderr
+
+
+def test_a_topic_outside_the_stack_with_subscribers_alone_is_not_recorded_without_a_publisher(ros_probe, tmp_path):
+    """Its type came from the subscriber, and the QoS then chosen matched no best-effort publisher that came later
+    (review): a topic outside the stack is taken once a publisher tells its type and QoS."""
+    from std_msgs.msg import String
+
+    ros_probe.create_subscription(String, "/foreign_listened", lambda _: None, 10)
+    recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--topics", "/foreign_listened",
+                           "--discovery-timeout", "3")
+    assert recorded.returncode == 2 and not (tmp_path / "bag").exists()
+    assert recorded.stderr.strip() == ("tactile-bag record: error: unknown topic /foreign_listened: not a topic of "
+                                       "the tactile stack and no publisher seen within 3 s; check the name or start "
+                                       "its publisher first")

@@ -50,8 +50,8 @@ def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str]
     deadline = time.monotonic() + discovery_timeout_s
     while len(types) < len(topics):
         graph = dict(node.get_topic_names_and_types())
-        for topic in topics:
-            if topic not in types and graph.get(topic):
+        for topic in topics:  # a topic with subscribers alone is not taken: its QoS comes from its publishers
+            if topic not in types and graph.get(topic) and node.count_publishers(topic):
                 if len(graph[topic]) > 1:
                     raise BagError(f"topic {topic} is published with several types {graph[topic]}: cannot record it")
                 types[topic] = graph[topic][0]
@@ -67,10 +67,11 @@ def resolve_topic_types(node: Node, topics: Sequence[str], known: dict[str, str]
 
 def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]) -> dict[str, QoSProfile]:
     """topic -> the QoS to record it with: the live graph's for the stack's topics (topics.qos_profile); for another
-    topic, reliable where every publisher seen offers that, else best effort: where one offers no more, which a
-    reliable subscription does not match (a best-effort publisher outside the stack was recorded with 0 messages, and
-    the tool asked whether the graph was running; found in review), and where none is seen yet (the type came from a
-    subscriber), since best effort takes either kind of publisher."""
+    topic (resolve_topic_types saw a publisher of it), that of its type where every publisher seen offers reliable
+    delivery (for an image topic: sensor-data QoS, best effort), else best effort with a queue of RELIABLE_DEPTH: a
+    reliable subscription matches no best-effort publisher (one outside the stack was recorded with 0 messages, and
+    the tool asked whether the graph was running; found in review). A best-effort publisher that appears only after
+    reliable ones were seen is not matched."""
     qos = {}
     for topic, msgtype in topic_types.items():
         offered = [] if topic in known else node.get_publishers_info_by_topic(topic)
