@@ -95,8 +95,8 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     given = [arg.slice.value if isinstance(arg, ast.Subscript) else arg.id for arg in call.args]
     parameters = list(inspect.signature(sensor_graph).parameters)
     assert len(given) == len(parameters) and not call.keywords
-    expected = {"sensor": "sensor", "camera_sources_file": "camera_sources"}
-    assert given == [expected.get(name, name) for name in parameters], given
+    launch_name = {"camera_sources_file": "camera_sources"}  # the launch argument of that parameter
+    assert given == [launch_name.get(name, name) for name in parameters], given
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
 
