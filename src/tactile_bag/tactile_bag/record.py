@@ -72,14 +72,13 @@ def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]
     reliable subscription matches no best-effort publisher (one outside the stack was recorded with 0 messages, and
     the tool asked whether the graph was running; found in review). A best-effort publisher that appears only after
     reliable ones were seen is not matched."""
-    qos = {}
-    for topic, msgtype in topic_types.items():
-        offered = [] if topic in known else node.get_publishers_info_by_topic(topic)
-        reliable = topic in known or offered and all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE
-                                                     for p in offered)
-        qos[topic] = qos_profile(msgtype) if reliable else QoSProfile(depth=RELIABLE_DEPTH,
-                                                                      reliability=ReliabilityPolicy.BEST_EFFORT)
-    return qos
+    def reliable(topic: str) -> bool:
+        offered = node.get_publishers_info_by_topic(topic)
+        return bool(offered) and all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in offered)
+
+    best_effort = QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+    return {topic: qos_profile(msgtype) if topic in known or reliable(topic) else best_effort
+            for topic, msgtype in topic_types.items()}
 
 
 @dataclass(frozen=True)

@@ -107,10 +107,7 @@ def _image_size(sensor, args) -> int:
         raise SettingsError(f"{sensor.source}: the model takes square camera images of one size, the sensor "
                             f"description's cameras.output is {' and '.join(f'{w} x {h}' for w, h in sorted(sizes))} "
                             "px; make it square (the reference sensor's: 128 x 128)")
-    try:
-        blocks = len(_conv_channels(args))
-    except ValueError:  # a malformed --conv-channels: _settings refuses it, naming it
-        return size[0]
+    blocks = len(_conv_channels(args))  # a malformed --conv-channels is refused there, naming the option
     if size[0] % 2 ** blocks:
         raise SettingsError(f"{sensor.source}: the cameras' output images, {size[0]} x {size[0]} px, must be a "
                             f"multiple of {2 ** blocks} px: each of the model's {blocks} conv blocks (--conv-channels) "
@@ -134,28 +131,25 @@ def _settings(args, cameras: int, **train_overrides) -> tuple[ModelConfig, Train
         model_config, train_config = _model_config(args), replace(_train_config(args), **train_overrides)
         train_config.check_batch_sizes(cameras)
     except ValueError as exc:
-        raise SettingsError(_named_by_option(str(exc))) from exc
+        raise SettingsError(_named_by_option(str(exc), args)) from exc
     return model_config, train_config
 
 
-#: The command-line option of each TrainConfig and ModelConfig field that has one, where it is not the field's name.
+#: The command-line option of each TrainConfig field whose option is not named after it.
 OPTION_OF_FIELD = {"max_epochs": "--epochs"}
-#: The fields whose option is named after them.
-FIELDS_OF_OPTIONS = ("batch_size", "learning_rate", "patience", "seed", "head_epochs", "head_batch_size",
-                     "head_learning_rate", "head_dropout", "head_noise_sigma", "head_blur_fraction",
-                     "head_blur_sigma_px", "head_misalign_fraction", "head_misalign_shift_px",
-                     "head_misalign_rotation_deg", "head_cycles", "head_precision", "recalibration_epochs",
-                     "conv_channels", "hidden_features", "camera_features", "feature_activation")
 
 
-def _named_by_option(message: str) -> str:
+def _named_by_option(message: str, args) -> str:
     """A TrainConfig or ModelConfig refusal naming the command-line option, not the field ("TrainConfig.max_epochs
-    must be ..." for --epochs 0; walkthrough)."""
+    must be ..." for --epochs 0; walkthrough). A field has an option where the parsed arguments hold one of its name;
+    image_size, set from the sensor description, has none."""
+    options = {name for name in vars(args) if name != "image_size"}
+
     def option(match: re.Match) -> str:
         field = match[1]
         if field in OPTION_OF_FIELD:
             return OPTION_OF_FIELD[field]
-        return "--" + field.replace("_", "-") if field in FIELDS_OF_OPTIONS else match[0]
+        return "--" + field.replace("_", "-") if field in options else match[0]
     return re.sub(r"(?:TrainConfig\.|ModelConfig: )(\w+)", option, message)
 
 

@@ -256,10 +256,11 @@ class SceneDraws:
             raise ValueError("SceneDraws: further draws need a scene to draw from")
         # Whether random presses find room depends on the seed: a draw that found none failed in the head phase, after
         # the end-to-end training (found in review). Checked here, before any frame is simulated.
+        ground_truth = ground_truth_model(self.sensor)  # the simulator's default model
         for k in range(1, self.draws + 1):
             draw = self.draw(k)
             try:
-                draw.check_playable(self.sensor, ground_truth_model(self.sensor))  # the simulator's default model
+                draw.check_playable(self.sensor, ground_truth)
             except SceneError as exc:  # it read as the scene's own fault, which generate and render play (walkthrough)
                 raise SceneError(f"further draw {k} of scene {self.scene.name!r} for the head phase (its seed "
                                  f"{draw.seed}): {exc}; leave the further draws out (--head-extra-draws 0), or give "

@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     common = ArgumentParser(add_help=False)
     common.add_argument("--sensor", help="sensor description YAML (default: the installed config/sensor.yaml)")
     parser = ArgumentParser(prog="tactile-sim", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+                            formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
 
     press = commands.add_parser("press", parents=[common], help="ground-truth bin forces of one press")
