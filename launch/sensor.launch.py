@@ -5,9 +5,11 @@
     ros2 launch tactile_bringup sensor.launch.py rviz:=true
 
 The nodes and their parameters come from tactile_bringup.graph, the same description `tactile-demo` runs
-where no launch system is installed.
+where no launch system is installed. RViz gets the configuration of the sensor description it runs
+(tactile_bringup.rviz_config: its frame and its bins), written to a temporary file.
 """
 
+import tempfile
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
@@ -18,6 +20,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from tactile_bringup.graph import sensor_graph
+from tactile_bringup.rviz_config import write_rviz_config
 from tactile_description import load_sensor
 
 SHARE = Path(get_package_share_directory("tactile_bringup"))
@@ -29,7 +32,7 @@ ARGUMENTS = {
     "model_dir": ("", "trained model directory; empty: the shipped default model"),
     "backend": ("onnxruntime", "inference backend: onnxruntime or torch"),
     "precision": ("fp32", "fp32, fp16 or int8 (onnxruntime)"),
-    "rviz": ("false", "also start RViz with the force markers"),
+    "rviz": ("false", "also start RViz with the force markers, set up for the sensor description"),
 }
 
 
@@ -38,13 +41,15 @@ def graph_nodes(context):
     sensor = load_sensor(value["sensor_config"])
     specs = sensor_graph(sensor, value["sensor_config"], value["source"], value["scene"], value["camera_sources"],
                          value["model_dir"], value["backend"], value["precision"])
-    return [Node(package=s.package, executable=s.executable, name=s.name, parameters=[s.parameters], output="screen")
-            for s in specs]
+    nodes = [Node(package=s.package, executable=s.executable, name=s.name, parameters=[s.parameters],
+                  output="screen") for s in specs]
+    if IfCondition(value["rviz"]).evaluate(context):
+        config = write_rviz_config(sensor, Path(tempfile.mkdtemp(prefix="tactile_rviz_")) / "tactile.rviz")
+        nodes.append(Node(package="rviz2", executable="rviz2", arguments=["-d", str(config)]))
+    return nodes
 
 
 def generate_launch_description():
     arguments = [DeclareLaunchArgument(name, default_value=default, description=text)
                  for name, (default, text) in ARGUMENTS.items()]
-    rviz = Node(package="rviz2", executable="rviz2", arguments=["-d", str(SHARE / "config" / "tactile.rviz")],
-                condition=IfCondition(LaunchConfiguration("rviz")))
-    return LaunchDescription([*arguments, OpaqueFunction(function=graph_nodes), rviz])
+    return LaunchDescription([*arguments, OpaqueFunction(function=graph_nodes)])

@@ -1,5 +1,6 @@
 import ast
 import inspect
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -7,6 +8,7 @@ import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
 from tactile_bringup.graph import NodeSpec, camera_sources, sensor_graph
+from tactile_bringup.rviz_config import grid_display, rviz_config, write_rviz_config
 from tactile_description import default_sensor_path, load_sensor
 
 SHARE = Path(get_package_share_directory("tactile_bringup"))
@@ -97,6 +99,11 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     assert len(given) == len(parameters) and not call.keywords
     launch_name = {"camera_sources_file": "camera_sources"}  # the launch argument of that parameter
     assert given == [launch_name.get(name, name) for name in parameters], given
+    # RViz gets the configuration written for the sensor description the graph runs, not a fixed file.
+    rviz = next(node for node in ast.walk(tree) if isinstance(node, ast.Call)
+                and getattr(node.func, "id", None) == "write_rviz_config")
+    assert getattr(rviz.args[0], "id", None) == "sensor"
+    assert 'load_sensor(value["sensor_config"])' in source and '"config" / "tactile.rviz"' not in source
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
 
@@ -112,30 +119,43 @@ def test_latency_measures_the_graph_with_its_markers_rate_and_without_stamp_jitt
     assert "markers_rate_hz" not in specs["bundle_node"].parameters
 
 
-def test_rviz_config_shows_the_topics_the_fusion_node_publishes():
+def test_rviz_config_shows_the_topics_the_fusion_node_publishes(sensor):
     """RViz cannot run here: check that its displays name the topics the graph publishes, with matching types."""
-    import yaml
-
     from tactile_conversions.forces import MARKER_NAMESPACE
     from tactile_conversions.topics import MARKERS_TOPIC, WRENCH_TOPIC
 
-    displays = yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text())["Visualization Manager"]["Displays"]
+    displays = rviz_config(sensor)["Visualization Manager"]["Displays"]
     topics = {d["Class"]: d["Topic"]["Value"] for d in displays if "Topic" in d}
     assert topics == {"rviz_default_plugins/MarkerArray": MARKERS_TOPIC, "rviz_default_plugins/Wrench": WRENCH_TOPIC}
     markers = next(d for d in displays if d["Class"] == "rviz_default_plugins/MarkerArray")
     assert markers["Namespaces"] == {MARKER_NAMESPACE: True}
 
 
-def test_the_rviz_grid_lines_fall_on_the_bin_edges():
-    """RViz draws a Grid's lines at offset - count * size / 2 + i * size, i = 0..count (rviz_rendering's
-    Grid::createGridPlane). Its offset put the x lines on the columns' centres, half a bin off (found in review)."""
+def test_the_installed_rviz_config_is_the_reference_sensors(sensor):
+    """config/tactile.rviz, for RViz opened without the launch system, is what the launch file writes for the
+    reference sensor (regenerate it with write_rviz_config after a change)."""
     import yaml
 
-    from tactile_description import load_sensor
+    assert yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text()) == rviz_config(sensor)
 
-    grid = load_sensor().grid
-    displays = yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text())["Visualization Manager"]["Displays"]
-    bins = next(d for d in displays if d["Class"] == "rviz_default_plugins/Grid")
+
+def test_rviz_shows_the_sensor_in_its_own_frame(sensor, tmp_path):
+    """A sensor in another frame: with the reference sensor's fixed frame RViz would show none of its markers."""
+    import yaml
+
+    pad = replace(sensor, frame_id="left_finger_pad")
+    written = yaml.safe_load(write_rviz_config(pad, tmp_path / "pad.rviz").read_text())
+    assert written["Visualization Manager"]["Global Options"]["Fixed Frame"] == "left_finger_pad"
+    assert written == rviz_config(pad)
+
+
+@pytest.mark.parametrize("sensor_file", ["sensor.yaml", "skin_3x3.yaml"])
+def test_the_rviz_grid_lines_fall_on_the_bin_edges(sensor_file):
+    """RViz draws a Grid's lines at offset - count * size / 2 + i * size, i = 0..count (rviz_rendering's
+    Grid::createGridPlane). Its offset put the x lines on the columns' centres, half a bin off (found in review).
+    The lines must cover the whole surface, of the reference sensor and of the nine-camera skin."""
+    grid = load_sensor(SHARE / "config" / sensor_file).grid
+    bins = grid_display(load_sensor(SHARE / "config" / sensor_file))
     size, count = bins["Cell Size"], bins["Plane Cell Count"]
     for axis, edges in (("X", np.arange(grid.cols + 1) * grid.width_m / grid.cols),
                         ("Y", np.arange(grid.rows + 1) * grid.length_m / grid.rows)):

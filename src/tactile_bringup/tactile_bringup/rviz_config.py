@@ -1,0 +1,76 @@
+"""The RViz configuration of a sensor: its bin grid, the force markers and the total force, in its frame.
+
+`sensor.launch.py rviz:=true` writes it for the sensor description it runs, so that a sensor with another
+`frame_id` or other bins is shown as it is (with one fixed configuration, RViz showed nothing for a sensor in another
+frame). `config/tactile.rviz` is this configuration for the reference sensor, to open without the launch system
+(`rviz2 -d config/tactile.rviz`); a test keeps the two equal.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from tactile_conversions.forces import MARKER_NAMESPACE
+from tactile_conversions.topics import MARKERS_TOPIC, WRENCH_TOPIC
+from tactile_description import SensorDescription
+
+#: RViz draws the total force at this many metres per newton (1 N as 1 cm; the lines of the bins: 50 mN as 1 cm).
+WRENCH_ARROW_M_PER_N = 0.01
+
+
+def _topic(name: str) -> dict:
+    """A display's subscription: the fusion node publishes markers and wrench reliably, keeping the last few."""
+    return {"Value": name, "Depth": 5, "Durability Policy": "Volatile", "History Policy": "Keep Last",
+            "Reliability Policy": "Reliable"}
+
+
+def grid_display(sensor: SensorDescription) -> dict:
+    """RViz's Grid of square cells, one per bin, its lines on the bins' edges from the surface's corner at (0, 0).
+
+    RViz draws a Grid's lines at offset - count * size / 2 + i * size, i = 0..count (rviz_rendering's
+    Grid::createGridPlane), in both directions alike: with the offset at count * size / 2 they start at 0. The cells
+    are as wide as a bin, and as many each way as the grid has bins along its longer side: where bins are not square,
+    the lines across x fall on the bins' edges and those across y do not (the reference sensor's bins are 1.96 mm
+    along x and 1.96 mm along y, to 2 um).
+    """
+    grid = sensor.grid
+    size = grid.bin_width_m
+    count = max(grid.cols, grid.rows)
+    half = round(count * size / 2, 9)
+    return {"Class": "rviz_default_plugins/Grid", "Name": f"Surface bins ({size * 1e3:.3g} mm)", "Enabled": True,
+            "Reference Frame": "<Fixed Frame>", "Plane": "XY", "Cell Size": round(size, 9),
+            "Plane Cell Count": count, "Offset": {"X": half, "Y": half, "Z": 0}, "Color": "160; 160; 164",
+            "Alpha": 0.5}
+
+
+def rviz_config(sensor: SensorDescription) -> dict:
+    """The configuration as the mapping RViz reads from a .rviz file."""
+    centre_x, centre_y = sensor.grid.centre_m
+    extent = max(sensor.grid.width_m, sensor.grid.length_m)
+    displays = [
+        grid_display(sensor),
+        {"Class": "rviz_default_plugins/MarkerArray", "Name": "Bin forces", "Enabled": True,
+         "Topic": _topic(MARKERS_TOPIC), "Namespaces": {MARKER_NAMESPACE: True}},
+        {"Class": "rviz_default_plugins/Wrench", "Name": "Total force", "Enabled": True,
+         "Topic": _topic(WRENCH_TOPIC), "Force Arrow Scale": WRENCH_ARROW_M_PER_N, "Force Color": "204; 51; 51",
+         "Torque Arrow Scale": 0},
+    ]
+    view = {"Class": "rviz_default_plugins/Orbit", "Name": "Current View", "Target Frame": "<Fixed Frame>",
+            "Focal Point": {"X": round(centre_x, 9), "Y": round(centre_y, 9), "Z": 0},
+            "Distance": round(2.4 * extent, 3), "Pitch": 0.9, "Yaw": 4.0}
+    return {"Panels": [{"Class": "rviz_common/Displays", "Name": "Displays"}],
+            "Visualization Manager": {
+                "Class": "", "Displays": displays,
+                "Global Options": {"Fixed Frame": sensor.frame_id, "Background Color": "48; 48; 48",
+                                   "Frame Rate": 30},
+                "Tools": [{"Class": "rviz_default_plugins/MoveCamera"}],
+                "Views": {"Current": view}}}
+
+
+def write_rviz_config(sensor: SensorDescription, path: str | Path) -> Path:
+    """Write `rviz_config(sensor)` to `path` (a .rviz file); returns the path."""
+    path = Path(path)
+    path.write_text(yaml.safe_dump(rviz_config(sensor), sort_keys=False))
+    return path
