@@ -266,14 +266,22 @@ class AxisymmetricLoad:
         return self.radius_m * np.sqrt(u * (2.0 - u))
 
 
-def contact_radius_m(shape: Sphere | FlatPunch, depth_m: float) -> float:
-    """Radius of the contact of `shape` pressed `depth_m` deep: Hertz's a = sqrt(R d) for a sphere, the punch's own."""
+def contact_radius_m(shape: Shape, depth_m: float) -> float:
+    """Radius of the contact of `shape` pressed `depth_m` deep: Hertz's a = sqrt(R d) for a sphere, the punch's own,
+    and for a height map the farthest reach of its pixels within `depth_m` of its lowest point (each pixel's centre
+    plus half its diagonal): the footprint of a rigid indentation, which the contact does not exceed (the surface
+    sinks around an indenter: a sphere's footprint sqrt(2 R d - d^2) is 1.4 times Hertz's radius)."""
     if isinstance(shape, Sphere):
         return math.sqrt(shape.radius_m * depth_m)
+    if isinstance(shape, HeightMap):
+        rows, cols = np.nonzero(shape.heights_m <= depth_m)
+        height, width = shape.heights_m.shape
+        centre_px = np.hypot(cols - (width - 1) / 2, rows - (height - 1) / 2).max()
+        return float(centre_px + math.sqrt(0.5)) * shape.pixel_m
     return shape.radius_m
 
 
-def reach_problem(grid: BinGrid, x_m: float, y_m: float, shape: Sphere | FlatPunch, depth_m: float) -> str | None:
+def reach_problem(grid: BinGrid, x_m: float, y_m: float, shape: Shape, depth_m: float) -> str | None:
     """Why a contact centred at (x_m, y_m) presses nothing on `grid`'s surface at `depth_m`: its centre lies beside the
     surface by at least the radius its contact reaches (None where it touches). Scenes and `tactile-sim press` refuse
     such a contact: it gives no force, and a user who typed millimetres of another sensor got 0 N without a word."""

@@ -155,13 +155,12 @@ def _place(n: YamlFields) -> Place:
 
 
 def _contacts_per_frame(n: YamlFields) -> tuple[int, int]:
-    per_frame = n.raw("contacts_per_frame", 1)
-    if is_whole_number(per_frame):
-        per_frame = [per_frame, per_frame]
+    given = n.raw("contacts_per_frame", 1)
+    per_frame = [given, given] if is_whole_number(given) else given
     if not (isinstance(per_frame, list) and len(per_frame) == 2 and all(is_whole_number(v) for v in per_frame)
             and per_frame[0] <= per_frame[1] <= 16):
         raise SceneError(f"{n.where}.contacts_per_frame must be an integer or [min, max] with 1 <= min <= max <= 16, "
-                         f"got {per_frame!r}")
+                         f"got {given!r}")
     return per_frame[0], per_frame[1]
 
 
@@ -223,6 +222,13 @@ def _parse_segment(entry, where: str, default_shape: Shape) -> Segment:
         region = n.raw("region", "surface")
         if region not in REGIONS:
             raise SceneError(f"{where}.region must be one of {list(REGIONS)}, got {region!r}")
+        # Each region places its centres by one of the two keys; the other was ignored without a word (review).
+        unused = "edge_band_mm" if region == "surface" else "margin_mm"
+        if n.has(unused):
+            raise SceneError(f"{where}.{unused} does not apply to region {region!r}: centres "
+                             + ("on the surface keep margin_mm from its edges" if region == "surface" else
+                                "near an edge or corner lie at a distance from it within edge_band_mm")
+                             + f"; remove {unused}")
         params.update(region=region, contacts_per_frame=_contacts_per_frame(n),
                       depth_m=tuple(v * MM for v in n.span("depth_mm")),
                       shear_m=tuple(v * MM for v in n.span("shear_mm", [0.0, 0.0])),
@@ -382,6 +388,12 @@ def _check_random_presses(p, where: str, grid: BinGrid) -> None:
         outside = -p["margin_m"]
     else:
         outside = max(-p["edge_band_m"][0], 0.0)
+        reach = contact_radius_m(p["shape"], p["depth_m"][1])
+        if p["edge_band_m"][1] <= -reach:
+            raise SceneError(f"{where}.edge_band_mm ({p['edge_band_m'][0] / MM:g} to {p['edge_band_m'][1] / MM:g} mm) "
+                             f"lies wholly beside the surface, farther out than the {reach / MM:.3g} mm the contact "
+                             f"reaches at its deepest: every press would press nothing; its upper end must be above "
+                             f"-{reach / MM:.3g} mm")
     box = (grid.width_m + 2 * outside, grid.length_m + 2 * outside)
     k, separation = p["contacts_per_frame"][1], p["min_separation_m"]
     if k > 1 and (separation > math.hypot(*box)
@@ -566,6 +578,9 @@ def parse_scene(raw, source: str = "scene") -> Scene:
         raise SceneError(f"{source}.name must be a file name of letters, digits, '_', '-' and '.' (not first), at "
                          f"most 100 characters (previews are named after it), got {name!r}")
     description = n.raw("description", "")
+    description = "" if description is None else description  # `description:` with nothing after it
+    if not isinstance(description, str):
+        raise SceneError(f"{source}.description must be text, got {description!r}")
     seed = n.count("seed", low=0)
     default_shape = _indenter(n.raw("indenter"), f"{source}.indenter") if n.has("indenter") else Sphere(0.005)
     timeline = n.raw("timeline", required=True)
@@ -581,9 +596,12 @@ def parse_scene(raw, source: str = "scene") -> Scene:
     if not isinstance(effects_raw, list):
         raise SceneError(f"{source}.effects must be a list of effects, got {effects_raw!r}")
     effects = tuple(parse_effect(e, f"{source}.effects[{i}]") for i, e in enumerate(effects_raw))
+    for i, effect in enumerate(effects):
+        if effect.frames is not None and effect.frames[0] >= total:
+            raise SceneError(f"{source}.effects[{i}]: effect {effect.name!r} starts at frame {effect.frames[0]}, "
+                             f"but the scene has {total} frames (0 to {total - 1}): it would never act")
     n.finish()
-    return Scene(name=name, description=str(description or ""), seed=seed, segments=segments, effects=effects,
-                 source=source)
+    return Scene(name=name, description=description, seed=seed, segments=segments, effects=effects, source=source)
 
 
 def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None = None) -> Scene:
@@ -592,7 +610,10 @@ def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None
     With `sensor`, also checks what depends on it (Scene.validate); the simulator always does before streaming.
     """
     path = Path(path_or_name)
-    if not path.is_file() and path.suffix in ("", ".yaml") and path.parent == Path("."):
+    # A plain name may be an installed scene; a path (with a directory, even "./") names a file only: Path("./x")
+    # is Path("x"), so "./demo.yaml" missing here read the installed demo without a word (review).
+    plain_name = "/" not in os.fspath(path_or_name) and os.sep not in os.fspath(path_or_name)
+    if not path.is_file() and path.suffix in ("", ".yaml") and plain_name:
         try:
             path = scenes_directory() / f"{path.stem}.yaml"
         except SensorConfigError as exc:  # where the scenes would be installed: a scene's error, as for the rest

@@ -14,8 +14,10 @@ from tactile_sim.contact import (
     FlatPunch,
     HeightMap,
     Sphere,
+    contact_radius_m,
     ground_truth_model,
     max_depth_m,
+    press_report,
     reference_press,
 )
 from tactile_sim.contact_solver import NumericalContactModel, layer_compliance_factor, surface_influence
@@ -113,6 +115,27 @@ def test_height_map_of_a_sphere_matches_the_sphere(sensor, model):
     as_sphere = model.bin_forces([Contact(*sensor.grid.centre_m, 1e-3, Sphere(radius))])
     assert as_map[..., 2].sum() == pytest.approx(as_sphere[..., 2].sum(), rel=0.005)
     np.testing.assert_allclose(as_map, as_sphere, atol=0.01 * as_sphere.max())
+
+
+def test_a_height_map_press_is_reported_and_refused_beside_the_surface_as_a_sphere_is(sensor, model):
+    """press_report read a radius that a height map has not: AttributeError for any height-map press (review). A height
+    map reaches as far as its pixels within the depth of its lowest point: the footprint of a rigid indentation, an
+    upper bound of the contact (a sphere's map: sqrt(2 R d - d^2) = 3 mm at 1 mm deep, Hertz's contact 2.24 mm)."""
+    pixel, n, radius = 0.1e-3, 101, 5e-3
+    offsets = (np.arange(n) - (n - 1) / 2) * pixel
+    x, y = np.meshgrid(offsets, offsets)
+    sphere_map = HeightMap(radius - np.sqrt(np.clip(radius**2 - x**2 - y**2, 0.0, None)), pixel)
+    assert contact_radius_m(sphere_map, 1e-3) == pytest.approx(3e-3, abs=pixel)
+    on_surface = Contact(*sensor.grid.centre_m, 1e-3, sphere_map)
+    report = press_report(sensor, on_surface, model)
+    np.testing.assert_allclose(np.array(report["bin_forces_n"]).reshape(sensor.grid.rows, sensor.grid.cols, 3),
+                               model.bin_forces([on_surface]))
+    assert report["total_force_n"][2] > 0
+    width_mm = sensor.grid.width_m * 1e3
+    grazing = press_report(sensor, Contact((width_mm + 2.0) * 1e-3, 0.025, 1e-3, sphere_map), model)
+    assert grazing["total_force_n"][2] > 0  # 2 mm beside the edge, within the 2.24 mm Hertz's contact reaches
+    with pytest.raises(ValueError, match=r"is 4 mm off the 49 x 51 mm surface, beyond the 3.\d+ mm its contact"):
+        press_report(sensor, Contact((width_mm + 4.0) * 1e-3, 0.025, 1e-3, sphere_map), model)
 
 
 def test_an_asymmetric_height_map_loads_its_low_side(sensor, model):

@@ -208,6 +208,18 @@ def _scene(**overrides):
     (_scene(timeline=[{"press_grid": {"cols": 2, "rows": 2, "depth_mm": [0.1, 1.0], "depths_per_position": 1,
                                       "margin_mm": float("inf")}}]),
      r"margin_mm must be a finite number >= 0, got inf"),
+    # Accepted and without effect before (review): a key of the other region, an effect after the scene's last frame,
+    # a description that is not text; and the count refused is the one given, not [17, 17]
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "region": "edges", "margin_mm": 30}}]),
+     r"random_presses.margin_mm does not apply to region 'edges'.*remove margin_mm"),
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "edge_band_mm": [0, 1]}}]),
+     r"random_presses.edge_band_mm does not apply to region 'surface'.*remove edge_band_mm"),
+    (_scene(effects=[{"type": "sensor_noise", "sigma": 1, "frames": [2, 10]}]),
+     r"effects\[0\]: effect 'sensor_noise' starts at frame 2, but the scene has 2 frames \(0 to 1\): it would never "
+     r"act"),
+    (_scene(description=[1, 2]), r"description must be text, got \[1, 2\]"),
+    (_scene(timeline=[{"random_presses": {"frames": 3, "depth_mm": 1, "contacts_per_frame": 17}}]),
+     r"<= max <= 16, got 17$"),
 ])
 def test_bad_scenes_get_clear_errors(raw, message):
     with pytest.raises(SceneError, match=message):
@@ -260,6 +272,10 @@ def _random(**body):
     # a path's waypoints too: the demo scene's path ran beside a 24.5 mm strip, pressing nothing most of the time
     (_scene(timeline=[{"path": {"frames": 10, "depth_mm": 1.0, "waypoints_mm": [[10, 10], [60, 10], [10, 10]]}}]),
      r"timeline\[0\].path.waypoints_mm\[1\]: a press at \(60, 10\) mm is 11 mm off the 49 x 51 mm surface"),
+    # random presses at an edge whose whole band lies beyond the contact's reach: every frame pressed nothing (review)
+    (_random(region="edges", edge_band_mm=[-10, -8]),
+     r"random_presses.edge_band_mm \(-10 to -8 mm\) lies wholly beside the surface, farther out than the 2.24 mm .*"
+     r"its upper end must be above -2.24 mm"),
 ])
 def test_presses_outside_the_models_or_off_the_surface_are_refused_before_any_frame(sensor, raw, message):
     scene = parse_scene(raw, "test.yaml")
@@ -333,6 +349,25 @@ def test_a_directory_of_a_scenes_name_in_the_working_directory_does_not_hide_the
     assert load_scene("demo").name == "demo"
     (tmp_path / "demo.yaml").write_text(yaml.safe_dump({**_scene(), "name": "mine"}))  # a file of the name given is
     assert load_scene("demo.yaml").name == "mine"
+
+
+def test_a_scene_given_as_a_path_is_that_file_never_an_installed_scene(tmp_path, monkeypatch):
+    """`--scene ./demo.yaml` names a file here: missing, it is an error, not the installed demo without a word
+    (Path("./demo.yaml") is Path("demo.yaml"), a plain name; found in review)."""
+    monkeypatch.chdir(tmp_path)
+    for given in ("./demo.yaml", "./demo", f"{tmp_path}/demo.yaml"):
+        with pytest.raises(SceneError, match="cannot read scene file"):
+            load_scene(given)
+    (tmp_path / "demo.yaml").write_text(yaml.safe_dump({**_scene(), "name": "mine"}))
+    assert load_scene("./demo.yaml").name == "mine"
+
+
+def test_random_presses_at_an_edge_that_reach_the_surface_with_part_of_their_band_are_taken(sensor):
+    """A band reaching beyond the contact radius is the edge_corner scene's design: its presses farthest out touch
+    nothing (frames at rest among the hard cases), the others part of the surface."""
+    scene = parse_scene(_random(region="edges", edge_band_mm=[-10, -2]))
+    scene.validate(sensor)  # -2 mm is within the 2.24 mm a 10 mm sphere 1 mm deep reaches
+    assert len(_all_contacts(scene, sensor)) == 3
 
 
 def test_unknown_scene_names_list_the_installed_ones(tmp_path):
