@@ -196,12 +196,17 @@ def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader
 
 
 def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFrame]:
-    """The recorded ImageBundles; the ones the recorder never got (gaps in their numbers) are counted as skipped."""
+    """The recorded ImageBundles; the ones the recorder never got (gaps in their numbers) are counted as skipped, and
+    so are bundles stamped before 1970 (or at 2**31 s and later), which fusion_node skips too."""
     sequence = BundleSequence()
     for topic, _, time_ns, raw in bag.messages([BUNDLE_TOPIC]):
         msg = deserialize(raw, ImageBundle, topic, time_ns)
         sequence.add(msg.sequence)
-        yield reader.frame(time_to_seconds(msg.header.stamp), list(msg.camera_ids), list(msg.images))
+        stamp_s = time_to_seconds(msg.header.stamp)
+        if not is_ros_time(stamp_s):  # as fusion_node skips it: no estimate can carry its stamp
+            reader.skip("bundle stamped outside [0, 2**31) s")
+            continue
+        yield reader.frame(stamp_s, list(msg.camera_ids), list(msg.images))
     if sequence.lost:
         reader.skipped["bundles missing from the recording (gaps in their sequence numbers)"] = sequence.lost
 

@@ -138,6 +138,22 @@ def test_bundles_missing_from_a_recording_are_counted(tmp_path, write_bag, senso
     assert summary["skipped"] == {"bundles missing from the recording (gaps in their sequence numbers)": 4}
 
 
+def test_a_recorded_bundle_stamped_before_1970_is_skipped_as_the_fusion_node_skips_it(tmp_path, write_bag, sensor,
+                                                                                        sim_frames, predictor):
+    write_bag(tmp_path / "clean", sensor, sim_frames, images=False, bundles=True)
+    with BagReader(tmp_path / "clean") as clean, BagWriter(tmp_path / "bag") as bag:
+        for topic, _, time_ns, raw in clean.messages(list(clean.topics)):
+            if topic == "/tactile/image_bundle":
+                msg = evaluate.deserialize(raw, ImageBundle, topic, time_ns)
+                if msg.sequence == 30:
+                    msg.header.stamp = Time(sec=-5)
+                    raw = serialize_message(msg)
+            bag.write(topic, clean.topics[topic], time_ns, raw)
+    clean, stray = (evaluate_bag(tmp_path / name, sensor, predictor, source="bundles") for name in ("clean", "bag"))
+    assert stray.skipped == {"bundle stamped outside [0, 2**31) s": 1}
+    assert len(stray.stamps_s) == len(clean.stamps_s) - 1 and stray.stamps_s.min() > 0
+
+
 def test_a_dropped_camera_degrades_recorded_bundles(tmp_path, write_bag, sensor, sim_frames, predictor):
     frames = [dataclasses.replace(f, camera_ok=np.array([c != "cam1" or f.index % 5 for c in sensor.camera_ids]))
               for f in sim_frames]
