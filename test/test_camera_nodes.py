@@ -92,6 +92,9 @@ def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_dev
     (BundleNode, {"queue_size": "10.0"}, "parameter queue_size must be a whole number >= 1, got 10.0"),
     (CameraNode, {"rate_hz": ".nan"}, "tactile_camera: parameter rate_hz must be a finite number > 0, got nan"),
     (CameraNode, {"reopen_period_s": "0"}, "parameter reopen_period_s must be a finite number > 0, got 0"),
+    # accepted before: a source that failed was never tried again (review)
+    (CameraNode, {"reopen_period_s": "1e300"},
+     "parameter reopen_period_s must be at most 86400 s (one day), got 1e+300"),
     (CameraNode, {"source": "-1"}, "parameter source must be a device index (an integer from 0 to 2147483647), a "
                                    "device path or a video file, got -1"),
     (CameraNode, {"source": "''"}, "parameter source must be a device index"),

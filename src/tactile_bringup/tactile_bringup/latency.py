@@ -39,6 +39,7 @@ from tactile_bringup.processes import (
     start_tool_graph,
     stop_nodes,
 )
+from tactile_conversions.parameters import MAX_RATE_HZ, MIN_RATE_HZ
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.stop_signals import init_ros, until_stop_signal
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC
@@ -131,7 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
     parser.add_argument("--backend", choices=list(BACKENDS), default="onnxruntime")
     parser.add_argument("--precision", choices=PRECISIONS, default="fp32")
-    parser.add_argument("--markers-rate", type=number_argument(0.0, "per second"), default=MARKERS_RATE_HZ,
+    # The fusion node's own bounds (parameters.rate_hz): a rate beyond them passed here and stopped the graph after its
+    # start, its error naming a parameter the tool has not (review).
+    parser.add_argument("--markers-rate", type=number_argument(MIN_RATE_HZ, "Hz", inclusive=True, high=MAX_RATE_HZ),
+                        default=MARKERS_RATE_HZ,
                         help="RViz marker arrays per second from the fusion node (default %(default)s; the cameras' "
                              "frame rate or more: one with every estimate)")
     parser.add_argument("--log-dir", default="log/latency", help="where the nodes' output goes (default %(default)s)")

@@ -52,3 +52,15 @@ def test_a_log_directory_that_cannot_be_made_is_refused(program, capsys, tmp_pat
         err = refused(capsys, program, ["--duration" if program == "tactile-demo" else "--window", "1",
                                         "--log-dir", str(log_dir)])
         assert f"--log-dir {log_dir}: cannot make it a directory for the nodes' logs ({why})" in err
+
+
+@pytest.mark.parametrize("rate", ["5000", "1e-6", "0"])
+def test_latency_refuses_a_markers_rate_the_fusion_node_would_refuse(capsys, tmp_path, rate):
+    """--markers-rate 5000 passed, and the graph stopped after its start with the fusion node's error about
+    markers_rate_hz and publish_markers, neither an option of the tool (review)."""
+    with pytest.raises(SystemExit) as stop:
+        latency.main(["--markers-rate", rate, "--log-dir", str(tmp_path / "logs")])
+    assert stop.value.code == 2
+    assert f"argument --markers-rate: must be a finite number of Hz in [1.15741e-05, 1000], got '{rate}'" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()

@@ -41,7 +41,7 @@ from tactile_conversions.parameters import (
     ParameterError,
     boolean,
     log_sensor_description,
-    positive_float,
+    period_s,
     rate_hz,
     sensor_description,
     text,
@@ -88,7 +88,7 @@ class CameraNode(Node):
         self.camera_id = text(self, "camera_id", "cam0")
         self.source = self.declare_source()
         self.loop = boolean(self, "loop", True)
-        self.reopen_period_s = positive_float(self, "reopen_period_s", 1.0)
+        self.reopen_period_s = period_s(self, "reopen_period_s", 1.0)
         sensor = sensor_description(self)
         if self.camera_id not in sensor.camera_ids:
             raise ParameterError(f"{self.get_name()}: parameter camera_id must name a camera of the sensor description "

@@ -12,7 +12,7 @@ from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
 from tactile_conversions.spinning import spin_until
 from tactile_conversions.topics import BUNDLE_TOPIC
-from tactile_fusion.bundle_node import BundleNode
+from tactile_fusion.bundle_node import CAMERA_CHECK_MIN_PERIOD_S, BundleNode
 from tactile_msgs.msg import ImageBundle
 
 CAMERAS = ("cam0", "cam1", "cam2", "cam3")
@@ -150,3 +150,11 @@ def test_every_camera_falling_silent_is_said_as_such(bundler, capfd):
     err = capfd.readouterr().err
     assert node.live_cameras == () and "bundling []" not in err
     assert f"no images from {sorted(CAMERAS)} for 0.50 s: no camera sends: no bundles until one does" in err
+
+
+@pytest.mark.parametrize(("timeout_s", "check_s"), [(0.001, CAMERA_CHECK_MIN_PERIOD_S), (0.25, 0.125)])
+def test_the_camera_check_runs_at_half_the_timeout_but_not_faster_than_a_hundred_times_a_second(bundler, timeout_s,
+                                                                                               check_s):
+    """camera_timeout_s 0.001 made a 2 kHz check that held a third of a core (review)."""
+    node, _ = bundler("-p", f"camera_timeout_s:={timeout_s}")
+    assert sorted(t.timer_period_ns for t in node.timers) == sorted([round(check_s * 1e9), 1_000_000_000])
