@@ -45,8 +45,16 @@ MIN_FRAME_RATE_HZ = 1.0 / 86_400.0
 MAX_FRAME_RATE_HZ = 1000.0
 
 #: A camera id names the camera's topic (/tactile/<id>/image), node and frame: a ROS name token, as rcl validates
-#: one. `cam-0`, `cam.0` or a YAML number `0` ended every camera node in a traceback (found in review).
-CAMERA_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+#: one. `cam-0`, `cam.0` or a YAML number `0` ended every camera node in a traceback (found in review); so did an id
+#: of 300 characters, over rcl's 247 for a topic (review): at most 64.
+CAMERA_ID = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")
+
+#: The ranges of the gel's and the surface's sizes and stiffness: a sensor's are millimetres to centimetres and kPa
+#: to MPa. A finite number beyond them, a typo, overflowed: a Young's modulus of 1e306 kPa became inf Pa, a layer
+#: 1e308 mm thick left the particle layer no volume, and the description's check divided by it (review).
+SURFACE_SIDE_MM = (0.1, 10_000.0)
+LAYER_THICKNESS_MM = (0.001, 1000.0)
+YOUNGS_MODULUS_KPA = (0.001, 1e9)
 
 
 class SensorConfigError(ValueError):
@@ -244,12 +252,21 @@ def _fields(node, where: str) -> YamlFields:
     return YamlFields(node, where, SensorConfigError)
 
 
+def _text(fields: YamlFields, key: str) -> str:
+    """A required key whose value is a non-empty text: a YAML null was the frame "None", a list a layer "['a', 'b']"
+    (found in reviews)."""
+    value = fields.raw(key, required=True)
+    if not (isinstance(value, str) and value.strip()):
+        raise SensorConfigError(f"{fields.where}.{key} must be a non-empty text, got {value!r}")
+    return value
+
+
 def _parse(raw: dict, source: str) -> SensorDescription:
     top = _fields(raw, source)
     surface = top.child("surface")
     grid = BinGrid(rows=surface.count("bin_rows"), cols=surface.count("bin_cols"),
-                   width_m=surface.number("width_mm", positive=True) * MM,
-                   length_m=surface.number("length_mm", positive=True) * MM)
+                   width_m=surface.number("width_mm", low=SURFACE_SIDE_MM[0], high=SURFACE_SIDE_MM[1]) * MM,
+                   length_m=surface.number("length_mm", low=SURFACE_SIDE_MM[0], high=SURFACE_SIDE_MM[1]) * MM)
     surface.finish()
     if grid.rows * grid.cols > MAX_BINS:
         raise SensorConfigError(f"{source}: surface {grid.rows} x {grid.cols} bins is more than {MAX_BINS} bins; give "
@@ -261,9 +278,11 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     layers = []
     for i, node in enumerate(layer_nodes):
         f = _fields(node, f"{source}.gel_layers[{i}]")
-        layers.append(GelLayer(name=str(f.raw("name", required=True)),
-                               thickness_m=f.number("thickness_mm", positive=True) * MM,
-                               youngs_modulus_pa=f.number("youngs_modulus_kpa", positive=True) * KPA,
+        layers.append(GelLayer(name=_text(f, "name"),
+                               thickness_m=f.number("thickness_mm", low=LAYER_THICKNESS_MM[0],
+                                                    high=LAYER_THICKNESS_MM[1]) * MM,
+                               youngs_modulus_pa=f.number("youngs_modulus_kpa", low=YOUNGS_MODULUS_KPA[0],
+                                                          high=YOUNGS_MODULUS_KPA[1]) * KPA,
                                # below 0.5: an incompressible layer makes the elastic kernels singular
                                poisson_ratio=f.number("poisson_ratio", low=0.0, high=0.4999)))
         f.finish()
@@ -273,7 +292,7 @@ def _parse(raw: dict, source: str) -> SensorDescription:
 
     p = top.child("particles")
     diameter_min_um, diameter_max_um = p.span("diameter_um", low=1e-9)
-    particles = ParticleSpec(layer=str(p.raw("layer", required=True)), diameter_min_m=diameter_min_um * UM,
+    particles = ParticleSpec(layer=_text(p, "layer"), diameter_min_m=diameter_min_um * UM,
                              diameter_max_m=diameter_max_um * UM, per_m3=p.number("per_mm3", positive=True) / MM**3,
                              seed=p.count("seed", low=0))
     p.finish()
@@ -305,8 +324,8 @@ def _parse(raw: dict, source: str) -> SensorDescription:
         camera_id = f.raw("id", required=True)
         if not (isinstance(camera_id, str) and CAMERA_ID.fullmatch(camera_id)):
             raise SensorConfigError(f"{source}.cameras.units[{i}]: id {camera_id!r} cannot name the camera's ROS topic "
-                                    f"(/tactile/<id>/image): use letters, digits and underscores, not starting with a "
-                                    f"digit, e.g. cam{i}")
+                                    f"(/tactile/<id>/image): use up to 64 letters, digits and underscores, not "
+                                    f"starting with a digit, e.g. cam{i}")
         cameras.append(CameraSpec(camera_id=camera_id,
                                   position_m=tuple(v * MM for v in f.numbers("position_mm", 3)),
                                   yaw_rad=math.radians(f.number("yaw_deg")), lens=lens, capture_size=capture_size,
@@ -318,12 +337,11 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     frame_rate_hz = cams.number("frame_rate_hz", low=MIN_FRAME_RATE_HZ, high=MAX_FRAME_RATE_HZ)
     cams.finish()
 
-    texts = {}
-    for key in ("name", "frame_id"):  # a YAML null was the frame "None" (found in review)
-        texts[key] = top.raw(key, required=True)
-        if not (isinstance(texts[key], str) and texts[key].strip()):
-            raise SensorConfigError(f"{source}.{key} must be a non-empty text, got {texts[key]!r}")
-    description = SensorDescription(name=texts["name"], frame_id=texts["frame_id"], grid=grid,
+    frame_id = _text(top, "frame_id")
+    if frame_id.startswith("/") or any(c.isspace() for c in frame_id):  # tf2 refuses both
+        raise SensorConfigError(f"{source}.frame_id must be a tf2 frame name, without a leading '/' or spaces, got "
+                                f"{frame_id!r}")
+    description = SensorDescription(name=_text(top, "name"), frame_id=frame_id, grid=grid,
                                     gel_layers=tuple(layers), particles=particles, cameras=tuple(cameras),
                                     frame_rate_hz=frame_rate_hz, source=source)
     top.finish()

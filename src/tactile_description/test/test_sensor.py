@@ -75,7 +75,7 @@ def _broken(tmp_path, edit):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda r: r["surface"].pop("bin_rows"), "surface: missing key 'bin_rows'"),
-    (lambda r: r["surface"].update(width_mm=-1), "surface.width_mm must be a finite number > 0"),
+    (lambda r: r["surface"].update(width_mm=-1), r"surface.width_mm must be a finite number in \[0.1, 10000\]"),
     # the camera nodes refused it as their rate_hz parameter, which the user had not set
     (lambda r: r["cameras"].update(frame_rate_hz=2000), "cameras.frame_rate_hz must be a finite number in "
                                                         r"\[1.15741e-05, 1000\], got 2000"),
@@ -84,8 +84,22 @@ def _broken(tmp_path, edit):
                                                         r"\[1.15741e-05, 1000\], got 1e-06"),
     # OverflowError rounding an infinite particle count: a traceback from every node and command (code review)
     (lambda r: r["particles"].update(per_mm3=1e300), "particles.per_mm3 = inf puts inf particles in the 7497 mm"),
-    (lambda r: r["surface"].update(width_mm=1e200, length_mm=1e200), "puts inf particles in the inf mm"),
-    (lambda r: r["gel_layers"][1].update(thickness_mm=1e308), "puts inf particles in the inf mm"),
+    # sizes and stiffness beyond a sensor's: inf particles in inf mm^3, a modulus of inf Pa, a division by a layer
+    # left no volume (review)
+    (lambda r: r["surface"].update(width_mm=1e200, length_mm=1e200),
+     r"surface.width_mm must be a finite number in \[0.1, 10000\], got 1e\+200"),
+    (lambda r: r["gel_layers"][1].update(thickness_mm=1e308),
+     r"gel_layers\[1\].thickness_mm must be a finite number in \[0.001, 1000\], got 1e\+308"),
+    (lambda r: r["gel_layers"][2].update(thickness_mm=1e-300),
+     r"gel_layers\[2\].thickness_mm must be a finite number in"),
+    (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=1e306),
+     r"gel_layers\[1\].youngs_modulus_kpa must be a finite number in \[0.001, 1e\+09\], got 1e\+306"),
+    (lambda r: r["gel_layers"][0].update(name=["a", "b"]), r"gel_layers\[0\].name must be a non-empty text, got \['a'"),
+    (lambda r: r["particles"].update(layer=None), r"particles.layer must be a non-empty text, got None"),
+    (lambda r: r.update(frame_id="/tactile_surface"), r"frame_id must be a tf2 frame name, without a leading '/' or "
+                                                      r"spaces, got '/tactile_surface'"),
+    (lambda r: r.update(frame_id="tactile surface"), r"frame_id must be a tf2 frame name"),
+    (lambda r: r["cameras"]["units"][0].update(id="c" * 65), r"units\[0\]: id 'c{65}' cannot name .*up to 64"),
     # a YAML null was the frame "None" (code review)
     (lambda r: r.update(frame_id=None), r"frame_id must be a non-empty text, got None"),
     (lambda r: r.update(name=" "), r"name must be a non-empty text, got ' '"),
@@ -99,15 +113,17 @@ def _broken(tmp_path, edit):
     (lambda r: r["gel_layers"][1].update(poisson_ratio=0.5),
      r"gel_layers\[1\].poisson_ratio must be a finite number in"),
     (lambda r: r["gel_layers"][1].update(youngs_modulus_kpa=math.nan),
-     "youngs_modulus_kpa must be a finite number > 0"),
+     "youngs_modulus_kpa must be a finite number in"),
     # inside the stated bounds, infinity was "in [0, inf], got inf" (review)
-    (lambda r: r["surface"].update(length_mm=math.inf), "surface.length_mm must be a finite number > 0, got inf"),
+    (lambda r: r["surface"].update(length_mm=math.inf),
+     r"surface.length_mm must be a finite number in \[0.1, 10000\], got inf"),
     (lambda r: r["particles"].update(diameter_um=[180, 150]), "diameter_um must be \\[min, max\\]"),
     (lambda r: r["particles"].update(layer="nowhere"), "no gel layer named 'nowhere'"),
     (lambda r: r["cameras"]["units"][1].update(id="cam0"), "camera ids must be unique"),
     # not a ROS name token: every camera node ended in InvalidTopicNameException (found in review)
     (lambda r: r["cameras"]["units"][1].update(id="cam-1"), r"units\[1\]: id 'cam-1' cannot name the camera's ROS "
-                                                            r"topic \(/tactile/<id>/image\): use letters, digits and"),
+                                                            r"topic \(/tactile/<id>/image\): use up to 64 letters, "
+                                                            r"digits and"),
     (lambda r: r["cameras"]["units"][2].update(id="cam.2"), r"id 'cam.2' cannot name"),
     (lambda r: r["cameras"]["units"][0].update(id=0), r"units\[0\]: id 0 cannot name .*, e.g. cam0"),
     (lambda r: r["cameras"]["units"][3].update(id="3d"), r"id '3d' cannot name"),

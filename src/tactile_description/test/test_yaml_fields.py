@@ -77,6 +77,26 @@ def test_an_explicit_int_that_yaml_12_cannot_read_is_refused_naming_the_file_and
         load_yaml_file(tagged, "scene", ValueError)
 
 
+@pytest.mark.parametrize("text", ["abc", "_", "1:30", "0x1f"])
+def test_an_explicit_float_that_yaml_12_cannot_read_is_refused_naming_the_file_and_line(tmp_path, text):
+    """`!!float abc` raised PyYAML's ValueError (`_`: an IndexError) naming neither file nor key, and `!!float 1:30`
+    read as YAML 1.1's 90 (review)."""
+    tagged = tmp_path / "tagged.yaml"
+    tagged.write_text(f"seed: 1\nwidth_mm: !!float {text}\n")
+    with pytest.raises(ValueError, match=rf"(?s)sensor description {tagged} is not valid YAML: .*'{text}' is not a "
+                                         r"number \(YAML 1.2: e.g. 1.5, 1e-3, .inf\).*line 2"):
+        load_yaml_file(tagged, "sensor description", ValueError)
+
+
+@pytest.mark.parametrize(("text", "value"),
+                         [("12", 12.0), ("-1_000.5", -1000.5), ("1e-3", 0.001), ("-.Inf", -math.inf)])
+def test_an_explicit_float_of_yaml_12_is_that_number(tmp_path, text, value):
+    tagged = tmp_path / "tagged.yaml"
+    tagged.write_text(f"width_mm: !!float {text}\n")
+    read = load_yaml_file(tagged, "sensor description", ValueError)["width_mm"]
+    assert read == value and isinstance(read, float)
+
+
 def test_a_file_of_aliases_of_aliases_is_refused_before_anything_walks_it(tmp_path):
     """600 bytes that expand to 10**9 values ("billion laughs"): a check or an error message's repr of them ran out of
     memory (found in review). The walk that refuses it stops at the limit."""
