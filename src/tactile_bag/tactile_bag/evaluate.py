@@ -35,7 +35,7 @@ from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.forces import forces_from_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
-from tactile_conversions.ros_time import is_ros_time, time_to_seconds
+from tactile_conversions.ros_time import is_ros_stamp, is_ros_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S, camera_topic
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
@@ -202,11 +202,10 @@ def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFram
     for topic, _, time_ns, raw in bag.messages([BUNDLE_TOPIC]):
         msg = deserialize(raw, ImageBundle, topic, time_ns)
         sequence.add(msg.sequence)
-        stamp_s = time_to_seconds(msg.header.stamp)
-        if not is_ros_time(stamp_s):  # as fusion_node skips it: no estimate can carry its stamp
+        if not is_ros_stamp(msg.header.stamp):  # as fusion_node skips it: no estimate can carry its stamp
             reader.skip("bundle stamped outside [0, 2**31) s")
             continue
-        yield reader.frame(stamp_s, list(msg.camera_ids), list(msg.images))
+        yield reader.frame(time_to_seconds(msg.header.stamp), list(msg.camera_ids), list(msg.images))
     if sequence.lost:
         reader.skipped["bundles missing from the recording (gaps in their sequence numbers)"] = sequence.lost
 

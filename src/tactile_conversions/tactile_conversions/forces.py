@@ -39,10 +39,10 @@ def forces_from_msg(msg: ForceDistribution, grid: BinGrid) -> np.ndarray:
     if (msg.rows, msg.cols) != (rows, cols) or len(msg.forces_n) != rows * cols * 3:
         raise ValueError(f"{msg.rows} x {msg.cols} bins and {len(msg.forces_n)} values, where the sensor description "
                          f"has {rows} x {cols} bins ({rows * cols * 3} values)")
-    forces = np.asarray(msg.forces_n, dtype=np.float64).reshape(rows, cols, 3)
-    if not np.isfinite(forces).all():
-        raise ValueError("NaN or Inf among its forces")
-    return forces
+    try:
+        return checked_forces(np.asarray(msg.forces_n).reshape(rows, cols, 3), grid)
+    except FloatingPointError as exc:  # of a received message: its data, not this process's arithmetic, is wrong
+        raise ValueError("NaN or Inf among its forces") from exc
 
 
 def force_distribution_msg(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id: str,
@@ -87,6 +87,11 @@ def wrench_msg(distribution: ForceDistribution) -> WrenchStamped:
 
 #: The markers' namespace (config/tactile.rviz enables it by name).
 MARKER_NAMESPACE = "bin_forces"
+#: The scales force_markers takes, newtons drawn as a metre, and how long RViz shows a marker (s): beyond them a line's
+#: end overflowed to Inf (1e-320 N/m), a lifetime wrapped round Duration's int32 seconds (3e9 s) or rounded to 0 ns,
+#: which RViz reads as "forever" (review).
+NEWTONS_PER_METRE_RANGE = (1e-9, 1e9)
+MARKER_LIFETIME_RANGE_S = (1e-3, 1e7)
 #: Colour levels of the force lines, blue (weak) to red (the strongest bin). The ColorRGBA objects are shared by
 #: every marker built here (building 1300 of them per marker costs more than the rest): do not edit them in place.
 COLOUR_LEVELS = 64
@@ -106,10 +111,13 @@ def force_markers(bin_forces_n: np.ndarray, grid: BinGrid, stamp: Time, frame_id
     One marker for all bins rather than an arrow marker per bin: building and serialising 650 arrows in Python
     took about 40 ms with every bin loaded, more than a 40 Hz frame (docs/nodes.md has the figures).
     """
-    if not newtons_per_metre > 0 or not min_force_n > 0 or not 0 < lifetime_s < float("inf"):
-        raise ValueError(f"need newtons_per_metre > 0, min_force_n > 0 and a finite lifetime_s > 0, got "
-                         f"{newtons_per_metre}, {min_force_n}, {lifetime_s}")
-    forces = checked_forces(bin_forces_n, grid)
+    if not (NEWTONS_PER_METRE_RANGE[0] <= newtons_per_metre <= NEWTONS_PER_METRE_RANGE[1] and min_force_n > 0
+            and MARKER_LIFETIME_RANGE_S[0] <= lifetime_s <= MARKER_LIFETIME_RANGE_S[1]):
+        raise ValueError(f"need newtons_per_metre in [{NEWTONS_PER_METRE_RANGE[0]:g}, {NEWTONS_PER_METRE_RANGE[1]:g}], "
+                         f"min_force_n > 0 and lifetime_s in [{MARKER_LIFETIME_RANGE_S[0]:g}, "
+                         f"{MARKER_LIFETIME_RANGE_S[1]:g}] s, got {newtons_per_metre}, {min_force_n}, {lifetime_s}")
+    # As a ForceDistribution carries them, float32: a force of 1e200 N overflowed the magnitudes to Inf (review)
+    forces = checked_forces(bin_forces_n, grid, np.float32).astype(np.float64)
     magnitudes = np.linalg.norm(forces, axis=-1)
     loaded = magnitudes >= min_force_n
     lifetime_ns = round(lifetime_s * 1e9)

@@ -1,4 +1,6 @@
-"""builtin_interfaces/Time <-> float seconds, exact to the nanosecond on the way back from an integer count."""
+"""builtin_interfaces/Time <-> float seconds. A float64 holds present-day stamps (1.7e9 s) to about a quarter of a
+microsecond, so a Time converted to seconds and back may differ in its last hundreds of nanoseconds; the stack's stamps
+are compared to microseconds at the finest."""
 
 import math
 
@@ -17,7 +19,16 @@ def is_ros_time(seconds: float) -> bool:
     """Whether seconds_to_time takes `seconds`: 0 up to TIME_LIMIT_S (excluded), rounded to the nanosecond.
 
     A Time with a negative `sec` is a legal message, but not a time a node can stamp its output with."""
-    return math.isfinite(seconds) and 0 <= round(seconds * 1e9) < TIME_LIMIT_S * 1_000_000_000
+    # The bounds first: 1e300 s overflowed the rounding to nanoseconds (OverflowError, review).
+    return (math.isfinite(seconds) and -1.0 < seconds < TIME_LIMIT_S + 1.0
+            and 0 <= round(seconds * 1e9) < TIME_LIMIT_S * 1_000_000_000)
+
+
+def is_ros_stamp(stamp: Time) -> bool:
+    """Whether a received Time can stamp a message a node sends on as it is: `sec` in [0, 2**31) and `nanosec` below
+    a second. A Time message holds any int32 and uint32 (rclpy checks neither on receipt): sec -1 with nanosec 1.5e9
+    is 0.5 s as seconds (is_ros_time), but a negative stamp as the message republished."""
+    return 0 <= stamp.sec < TIME_LIMIT_S and 0 <= stamp.nanosec < 1_000_000_000
 
 
 def seconds_to_time(seconds: float) -> Time:

@@ -134,7 +134,17 @@ def test_non_finite_or_misshapen_forces_and_bad_scales_are_never_drawn(grid):
         force_markers(forces, grid, Time(), "tactile_surface")
     with pytest.raises(ValueError, match="shape"):
         force_markers(np.zeros((grid.cols, grid.rows, 3)), grid, Time(), "tactile_surface")
-    for bad in ({"newtons_per_metre": 0.0}, {"min_force_n": 0.0}, {"lifetime_s": 0.0}, {"lifetime_s": np.nan},
-                {"lifetime_s": np.inf}):
-        with pytest.raises(ValueError, match="> 0"):
+    # 1e200 N overflowed the magnitudes (an IndexError), 1e-320 N/m drew a line to Inf, 3e9 s wrapped round the
+    # lifetime's int32 seconds and 4e-10 s rounded to 0 ns, RViz's "forever" (review)
+    forces = loaded_bins(grid).astype(np.float64)
+    forces[5, 5, 2] = 1e200
+    with pytest.raises(FloatingPointError):
+        force_markers(forces, grid, Time(), "tactile_surface")
+    for bad in ({"newtons_per_metre": 0.0}, {"newtons_per_metre": 1e-320}, {"min_force_n": 0.0},
+                {"lifetime_s": 0.0}, {"lifetime_s": np.nan}, {"lifetime_s": np.inf}, {"lifetime_s": 3e9},
+                {"lifetime_s": 4e-10}):
+        with pytest.raises(ValueError, match=r"need newtons_per_metre in \[1e-09, 1e\+09\], min_force_n > 0 and "
+                                             r"lifetime_s in \[0.001, 1e\+07\] s"):
             force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", **bad)
+    longest = force_markers(loaded_bins(grid), grid, Time(), "tactile_surface", lifetime_s=1e7).markers[0].lifetime
+    assert (longest.sec, longest.nanosec) == (10_000_000, 0)

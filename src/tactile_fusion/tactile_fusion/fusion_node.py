@@ -50,7 +50,7 @@ from tactile_conversions.parameters import (
     text,
     whole_number,
 )
-from tactile_conversions.ros_time import is_ros_time, time_to_seconds
+from tactile_conversions.ros_time import is_ros_stamp, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
 from tactile_description import left_out_components
 from tactile_fusion.artifacts import (
@@ -133,10 +133,11 @@ class FusionNode(Node):
     def on_bundle(self, bundle: ImageBundle) -> None:
         started = time.perf_counter()
         self.count_lost_bundles(bundle.sequence)
-        stamp_s = time_to_seconds(bundle.header.stamp)
-        if not is_ros_time(stamp_s):  # the bundle node never sends one; a bag or another publisher may
-            self.report_problems(bundle.sequence, [("stamp outside [0, 2**31) s", f"{stamp_s:g} s, which no estimate "
-                                                    "can carry; the bundle is skipped")])
+        stamp = bundle.header.stamp
+        if not is_ros_stamp(stamp):  # the bundle node never sends one; a bag or another publisher may
+            self.report_problems(bundle.sequence, [("stamp outside [0, 2**31) s", f"sec {stamp.sec}, nanosec "
+                                                    f"{stamp.nanosec}, which no estimate can carry; the bundle is "
+                                                    "skipped")])
             return  # neither estimated nor counted towards the reference frames
         self.estimate(bundle)
         if self.load.add(time.perf_counter() - started, time_to_seconds(bundle.header.stamp)):

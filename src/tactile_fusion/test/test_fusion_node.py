@@ -159,21 +159,24 @@ def test_a_malformed_bundle_is_skipped_and_the_node_goes_on(fusion, press_frames
     assert list(estimates[0].missing_camera_ids) == []
 
 
-def test_a_bundle_stamped_before_1970_is_skipped_not_published_with_its_stamp(fusion, press_frames, capfd):
+@pytest.mark.parametrize(("sec", "nanosec"), [(-5, 0), (-1, 1_500_000_000)])
+def test_a_bundle_stamped_before_1970_is_skipped_not_published_with_its_stamp(fusion, press_frames, capfd, sec,
+                                                                              nanosec):
     """The estimate carried the bundle's stamp as it was: sec -5 reached /tactile/force_distribution (review). A Time
-    message holds a negative sec, and a bag or another publisher than the bundle node may send one."""
+    message holds a negative sec, and a bag or another publisher than the bundle node may send one; sec -1 with
+    nanosec 1.5e9 is 0.5 s as seconds, and went out as sec -1 (review)."""
     node, estimates = fusion
     for sequence in range(2):
         node.on_bundle(bundle(press_frames[sequence], sequence))
     bad = bundle(press_frames[2], 2)
-    bad.header.stamp = Time(sec=-5)
+    bad.header.stamp = Time(sec=sec, nanosec=nanosec)
     node.on_bundle(bad)
     node.on_bundle(bundle(press_frames[2], 3))
     assert spin_until(node, lambda: len(estimates) == 1, 10.0)
     assert not spin_until(node, lambda: len(estimates) > 1, 0.3)
     assert estimates[0].header.stamp.sec == 1_700_000_003
-    assert "bundle 2: stamp outside [0, 2**31) s (-5 s, which no estimate can carry; the bundle is " \
-        "skipped)" in capfd.readouterr().err
+    assert f"bundle 2: stamp outside [0, 2**31) s (sec {sec}, nanosec {nanosec}, which no estimate can carry; the " \
+        "bundle is skipped)" in capfd.readouterr().err
 
 
 def test_a_malformed_bundle_does_not_count_towards_the_reference(fusion, press_frames):
