@@ -30,8 +30,11 @@ from tactile_description import SensorDescription, load_sensor
 from tactile_description.sensor import MAX_FRAME_RATE_HZ, MIN_FRAME_RATE_HZ, SensorConfigError
 from tactile_description.value_checks import is_number, is_whole_number
 
-#: The descriptor of a parameter whose type the node checks and converts itself.
-DYNAMIC = ParameterDescriptor(dynamic_typing=True)
+#: The descriptor of a parameter whose type the node checks and converts itself, once, at start-up: read-only after it.
+#: The nodes read their parameters when they start; `ros2 param set ... rate_hz nan` reported success, changed nothing
+#: and left NaN in the parameter for anyone who queried it (review). Now such a change is refused ("Trying to set a
+#: read-only parameter").
+DYNAMIC = ParameterDescriptor(dynamic_typing=True, read_only=True)
 
 #: The rates that rate_hz takes (cameras, RViz markers): those a sensor description's frame_rate_hz may give, one a day
 #: to 1 kHz.

@@ -137,3 +137,14 @@ def test_a_switch_or_a_name_of_another_type_is_refused_naming_the_parameter(node
     with pytest.raises(ParameterError) as refused:
         helper(node_with(value), "period_s", default)
     assert message in str(refused.value)
+
+
+@pytest.mark.parametrize("declare", [positive_float, period_s, rate_hz])
+def test_a_parameter_read_at_start_up_refuses_a_later_change(node_with, declare):
+    """The nodes read their parameters once: a change later was reported a success and changed nothing, and left NaN
+    in the parameter (review)."""
+    node = node_with(2.0)
+    assert declare(node, "period_s", 1.0) == 2.0
+    result, = node.set_parameters([Parameter("period_s", value=math.nan)])
+    assert not result.successful and "read-only" in result.reason
+    assert node.get_parameter("period_s").value == 2.0
