@@ -25,9 +25,10 @@ class ImageMessageError(ValueError):
 
 
 def mono8_to_msg(image: np.ndarray, stamp: Time, frame_id: str) -> Image:
-    """A mono8 Image message holding a (H, W) uint8 array."""
-    if image.dtype != np.uint8 or image.ndim != 2:
-        raise ImageMessageError(f"{frame_id}: expected a (H, W) uint8 image, got {image.dtype} {image.shape}")
+    """A mono8 Image message holding a (H, W) uint8 array, not empty (msg_to_array refuses an empty one)."""
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 2 or image.size == 0:
+        raise ImageMessageError(f"{frame_id}: expected a non-empty (H, W) uint8 image, got "
+                                f"{getattr(image, 'dtype', type(image).__name__)} {getattr(image, 'shape', '')}")
     height, width = image.shape
     msg = Image(header=Header(stamp=stamp, frame_id=frame_id), height=height, width=width, encoding="mono8",
                 is_bigendian=0, step=width)

@@ -39,9 +39,14 @@ def test_inconsistent_messages_are_rejected_naming_the_camera(fields, data, mess
         msg_to_array(msg, "cam2")
 
 
-def test_only_2d_uint8_images_are_published():
-    with pytest.raises(ImageMessageError, match="expected a \\(H, W\\) uint8 image"):
+def test_only_non_empty_2d_uint8_images_are_published():
+    with pytest.raises(ImageMessageError, match="expected a non-empty \\(H, W\\) uint8 image, got float32 \\(4, 4\\)"):
         mono8_to_msg(np.zeros((4, 4), np.float32), Time(), "cam0")
+    # published before, and refused by msg_to_array as empty; a list was an AttributeError (review)
+    with pytest.raises(ImageMessageError, match="got uint8 \\(0, 5\\)"):
+        mono8_to_msg(np.zeros((0, 5), np.uint8), Time(), "cam0")
+    with pytest.raises(ImageMessageError, match="got list"):
+        mono8_to_msg([[1, 2]], Time(), "cam0")
 
 
 def test_bundle_images_become_a_frame_in_the_sensor_order():

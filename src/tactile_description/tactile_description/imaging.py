@@ -22,6 +22,8 @@ def to_mono8(frame: np.ndarray, camera_id: str = "camera") -> np.ndarray:
     if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8:
         raise FrameError(f"{camera_id}: expected a uint8 image, got "
                          f"{getattr(frame, 'dtype', type(frame).__name__)}")
+    if frame.size == 0:  # OpenCV's colour conversion raised cv2.error, which a camera node does not catch (review)
+        raise FrameError(f"{camera_id}: the frame is empty (shape {frame.shape})")
     if frame.ndim == 3 and frame.shape[2] == 1:
         return frame[:, :, 0]
     if frame.ndim == 3 and frame.shape[2] == 3:

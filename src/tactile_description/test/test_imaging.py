@@ -40,6 +40,9 @@ def test_bgr_frame_is_converted_to_mono(camera):
     (np.zeros((480, 640), np.uint8), "expects 320 x 240"),
     (np.zeros((240, 320), np.float32), "expected a uint8 image"),
     (np.zeros((240, 320, 4), np.uint8), "expected a mono or BGR image"),
+    # cv2.error from the colour conversion, which a camera node does not catch (review)
+    (np.zeros((0, 0, 3), np.uint8), r"the frame is empty \(shape \(0, 0, 3\)\)"),
+    (np.zeros((0, 320), np.uint8), "the frame is empty"),
 ])
 def test_bad_frames_get_a_clear_error(camera, frame, message):
     with pytest.raises(FrameError, match=message):
