@@ -11,6 +11,8 @@ from rclpy.executors import ExternalShutdownException
 
 #: Set by the SIGINT handler that `init_ros` installs; cleared by each `init_ros`.
 _interrupted = threading.Event()
+#: Set by `init_ros`: before it, rclpy's context is not yet valid, and that says nothing of a signal.
+_started = threading.Event()
 
 
 def init_ros(args: list[str] | None = None) -> None:
@@ -25,6 +27,7 @@ def init_ros(args: list[str] | None = None) -> None:
     _interrupted.clear()
     signal.signal(signal.SIGINT, _record_interrupt)
     rclpy.init(args=args)
+    _started.set()
 
 
 def _record_interrupt(signum: int, frame) -> None:
@@ -34,12 +37,13 @@ def _record_interrupt(signum: int, frame) -> None:
 
 def stopped_by_signal(error: BaseException) -> bool:
     """Whether `error` is how a Ctrl-C or SIGTERM ended the spinning: KeyboardInterrupt, rclpy's
-    ExternalShutdownException, or any error raised once the signal had shut rclpy's context down or, after `init_ros`,
+    ExternalShutdownException, or, after `init_ros`, any error raised once the signal had shut rclpy's context down or
     once a Ctrl-C had arrived. rclpy's handler shuts the context down at once, from another thread, so an rcl call
     already under way (count_publishers, publish, the timer of spin_once) then fails with "context is invalid"
-    instead; a Ctrl-C can also surface as another error (`init_ros`)."""
+    instead; a Ctrl-C can also surface as another error (`init_ros`). Before `init_ros` the context is not valid
+    either, and every error passed for a stop (review)."""
     return isinstance(error, (KeyboardInterrupt, ExternalShutdownException)) or (
-        isinstance(error, Exception) and (not rclpy.ok() or _interrupted.is_set()))
+        isinstance(error, Exception) and _started.is_set() and (not rclpy.ok() or _interrupted.is_set()))
 
 
 class StopState:

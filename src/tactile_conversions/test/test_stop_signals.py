@@ -2,11 +2,13 @@
 (real rclpy context, no DDS traffic)."""
 
 import signal
+import threading
 
 import pytest
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
+from tactile_conversions import stop_signals
 from tactile_conversions.stop_signals import init_ros, stopped_by_signal, until_stop_signal
 
 #: What a Ctrl-C raised inside rclpy's conversion of a taken message became in a bundle node (pybind11's words).
@@ -15,9 +17,18 @@ CONVERSION_ERROR = RuntimeError("Unable to convert call argument '0' to Python o
 
 @pytest.fixture
 def context():
-    rclpy.init()
+    init_ros()
     yield
     rclpy.try_shutdown()
+
+
+def test_before_ros_is_started_an_error_is_no_stop(monkeypatch):
+    """rclpy's context is not valid before init_ros either: every error passed for a stop, and a block ended by a real
+    failure ended quietly as if stopped (review)."""
+    monkeypatch.setattr(stop_signals, "_started", threading.Event())  # as in a process that has not started ROS
+    assert not rclpy.ok() and not stopped_by_signal(ValueError("a real bug"))
+    with pytest.raises(ValueError, match="a real bug"), until_stop_signal():
+        raise ValueError("a real bug")
 
 
 def test_an_error_is_a_stop_only_once_rclpy_is_shut_down(context):
