@@ -15,13 +15,6 @@ from tactile_conversions.stop_signals import init_ros, stopped_by_signal, until_
 CONVERSION_ERROR = RuntimeError("Unable to convert call argument '0' to Python object")
 
 
-@pytest.fixture
-def context():
-    init_ros()
-    yield
-    rclpy.try_shutdown()
-
-
 def test_before_ros_is_started_an_error_is_no_stop(monkeypatch):
     """rclpy's context is not valid before init_ros either: every error passed for a stop, and a block ended by a real
     failure ended quietly as if stopped (review)."""
@@ -31,7 +24,7 @@ def test_before_ros_is_started_an_error_is_no_stop(monkeypatch):
         raise ValueError("a real bug")
 
 
-def test_an_error_is_a_stop_only_once_rclpy_is_shut_down(context):
+def test_an_error_is_a_stop_only_once_rclpy_is_shut_down(ros_started_by_init_ros):
     assert stopped_by_signal(KeyboardInterrupt()) and stopped_by_signal(ExternalShutdownException())
     assert not stopped_by_signal(RuntimeError("failed to create timer"))  # a real failure while ROS runs
     rclpy.shutdown()  # what rclpy's handler does at once on SIGINT or SIGTERM
@@ -39,7 +32,7 @@ def test_an_error_is_a_stop_only_once_rclpy_is_shut_down(context):
     assert not stopped_by_signal(SystemExit(1))  # not an error of an rcl call
 
 
-def test_a_block_until_a_stop_signal_ends_quietly_on_the_stop_only(context):
+def test_a_block_until_a_stop_signal_ends_quietly_on_the_stop_only(ros_started_by_init_ros):
     ran_on = []
     with until_stop_signal() as stop:
         raise KeyboardInterrupt
