@@ -17,6 +17,8 @@ import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+import apsw
+import yaml
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
 
 from tactile_bag.mcap_crcs import McapError, check_summary_crc, fill_mcap_crcs
@@ -34,9 +36,11 @@ BAG_VERSION = 9
 #: zstd-compressed one (rosbag2's FILE or MESSAGE compression, zstd MCAP chunks) whose compressed bytes are cut short
 #: (EOFError) or are not zstd (ZstdError, e.g. metadata that claims zstd over a plain .mcap), and on an lz4 MCAP chunk
 #: whose bytes are not an lz4 frame (the lz4 package raises a plain RuntimeError), and on a record length damaged
-#: into one too large to allocate (MemoryError: one byte of the MCAP header record's length set to 0x7f).
+#: into one too large to allocate (MemoryError: one byte of the MCAP header record's length set to 0x7f), and on a
+#: damaged sqlite3 (.db3) file, read through apsw (apsw.CorruptError "database disk image is malformed": a traceback
+#: before, review).
 DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error, EOFError,
-                      ZstdError, RuntimeError, MemoryError)
+                      ZstdError, RuntimeError, MemoryError, apsw.Error)
 #: What rosbags' Reader.open raises on a metadata.yaml whose fields are of the wrong kind: a number quoted (a
 #: TypeError inside rosbags), a number as a type name (AttributeError).
 METADATA_KIND_ERRORS = (TypeError, AttributeError)
@@ -144,6 +148,8 @@ class BagReader:
         if self.path.is_dir() and not (self.path / "metadata.yaml").exists():  # rosbags: "Expected metadata file
             raise BagError(f"bag {self.path} has no metadata.yaml: give the directory that `tactile-bag record` (or "
                            "`ros2 bag record`) wrote, whole")  # 'DIR' does not exist", naming the directory
+        if self.path.is_dir():
+            self._check_files_listed()
         try:
             self._reader = Reader(self.path)
             self._reader.open()
@@ -176,6 +182,20 @@ class BagReader:
         self.counts = dict.fromkeys(self.topics, 0)
         for connection in self._reader.connections:
             self.counts[connection.topic] += connection.msgcount
+
+    def _check_files_listed(self) -> None:
+        """BagError unless metadata.yaml's `files` (where given) lists mappings: rosbags opened a bag whose `files` was
+        text, and failed as it closed it, with an AttributeError traceback (review). Other damage to metadata.yaml is
+        left to rosbags, whose errors the constructor reports."""
+        try:
+            information = yaml.safe_load((self.path / "metadata.yaml").read_text(encoding="utf-8"))
+            files = information["rosbag2_bagfile_information"].get("files", [])
+        except (OSError, ValueError, yaml.YAMLError, TypeError, KeyError, AttributeError):
+            return
+        if not (isinstance(files, list) and all(isinstance(entry, dict) for entry in files)):
+            raise BagError(f"bag {self.path} cannot be opened: its metadata.yaml gives `files` as {files!r}, not a "
+                           "list of its storage files; compare it with the metadata.yaml of a bag that `tactile-bag "
+                           "record` wrote")
 
     def require_topics(self, topics: Iterable[str]) -> list[str]:
         """`topics` if the bag has every one, else BagError listing what it has."""

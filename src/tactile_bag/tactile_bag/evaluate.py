@@ -80,6 +80,7 @@ class BagEvaluation:
     bin_centers_m: np.ndarray       # (rows, cols, 2) of the sensor's bins, for the centre of pressure
     skipped: dict[str, int] = field(default_factory=dict)  # why images or bundles were not used, with counts
     contact_level_n: float = CONTACT_LEVEL_N  # estimated total Fz from which an estimate reports contact
+    other_image_topics: tuple[str, ...] = ()  # image topics of the bag that no camera of the description publishes
 
     @property
     def matched(self) -> np.ndarray:
@@ -114,6 +115,7 @@ class BagEvaluation:
             "estimates_off_reference": int(off.any(axis=1).sum()),
             "off_reference_camera_ids": [c for c, o in zip(self.camera_ids, off.any(axis=0), strict=True) if o],
             "skipped": dict(self.skipped),
+            "other_image_topics": list(self.other_image_topics),
             "ground_truth_messages": self.truth_messages,
             "matched_with_ground_truth": int(self.matched.sum()),
             "rmse_bin_n": metrics.get("rmse_bin_n"),
@@ -286,6 +288,11 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
     live = live_estimation(predictor, sensor, reference_bundles)
     with BagReader(path) as bag:
         source = choose_source(bag, sensor, source)
+        # Images of cameras the description does not name are not read: those of another sensor's description, say
+        # (left out without a word before; review)
+        cameras = {camera_topic(c) for c in sensor.camera_ids}
+        other_images = tuple(sorted(t for t, kind in bag.topics.items()
+                                    if kind == IMAGE_TYPE and t not in cameras and bag.counts[t]))
         reader = FrameReader(sensor, predictor.image_size)
         try:
             truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic or GROUND_TRUTH_TOPIC,
@@ -338,4 +345,4 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         reference_cameras=reference.cameras,
         truth_messages=len(truth_stamps), truth_index=match_stamps(stamps_s, truth_stamps, match_tolerance_s),
         truth_n=truth, bin_centers_m=sensor.grid.bin_centers_m(), skipped=reader.skipped,
-        contact_level_n=contact_level_n)
+        contact_level_n=contact_level_n, other_image_topics=other_images)

@@ -29,6 +29,10 @@ MIN_RATE = 1e-3
 #: days in the bag at MIN_RATE) is slept in pieces instead of raising OverflowError.
 MAX_SLEEP_S = 0.25
 
+#: How often a looped bag whose topics hold one message each starts over (s, at rate 1): such a bag has no period of
+#: its own, and without a pause it was published as fast as the CPU went (160000 times in 3 s; review).
+SINGLE_MESSAGE_LOOP_S = 1.0
+
 
 def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequence[str] | None = None,
          wait_subscribers_s: float = 1.0) -> dict[str, int]:
@@ -61,28 +65,48 @@ def play(path: str | Path, rate: float = 1.0, loop: bool = False, topics: Sequen
                 while time.monotonic() < wait_until and not all(p.get_subscription_count()
                                                                 for p in publishers.values()):
                     time.sleep(0.02)
-                while _play_once(bag, selected, publishers, counts, rate) and loop:
+                while _play_once(bag, selected, publishers, counts, rate, loop) and loop:
                     pass
             return counts
         finally:
             node.destroy_node()
 
 
-def _play_once(bag: BagReader, topics: list[str], publishers: dict, counts: dict[str, int], rate: float) -> bool:
-    """One pass over the bag: message i goes out (t_i - t_0) / rate after the pass started.
+def _play_once(bag: BagReader, topics: list[str], publishers: dict, counts: dict[str, int], rate: float,
+               loop: bool) -> bool:
+    """One pass over the bag: message i goes out (t_i - t_0) / rate after the pass started. With `loop` the pass lasts
+    one period more than its messages span (`_loop_period_ns`), so that the next pass's first messages follow the last
+    ones as they followed each other (back to back before).
 
     Returns False when ROS was shut down meanwhile (SIGTERM), True at the end of the bag.
     """
     start_wall = time.monotonic()
     first_ns = None
+    seen: dict[str, list[int]] = {}  # topic -> [first, last receive time ns, messages]
     for topic, _, time_ns, raw in bag.messages(topics):
         if first_ns is None:
             first_ns = time_ns
-        due = start_wall + (time_ns - first_ns) * 1e-9 / rate
-        while rclpy.ok() and (delay := due - time.monotonic()) > 0:
-            time.sleep(min(delay, MAX_SLEEP_S))
-        if not rclpy.ok():
+        if not _wait_until(start_wall + (time_ns - first_ns) * 1e-9 / rate):
             return False
         publishers[topic].publish(raw)
         counts[topic] += 1
+        times = seen.setdefault(topic, [time_ns, time_ns, 0])
+        times[1], times[2] = time_ns, times[2] + 1
+    if loop and first_ns is not None:
+        span_ns = max(last for _, last, _ in seen.values()) - first_ns
+        return _wait_until(start_wall + (span_ns + _loop_period_ns(seen)) * 1e-9 / rate)
     return True
+
+
+def _loop_period_ns(seen: dict[str, list[int]]) -> float:
+    """The pause between two passes of a loop: the median over the topics of the mean time between their messages, or
+    SINGLE_MESSAGE_LOOP_S where every topic has one message."""
+    periods = sorted((last - first) / (n - 1) for first, last, n in seen.values() if n > 1)
+    return periods[len(periods) // 2] if periods else SINGLE_MESSAGE_LOOP_S * 1e9
+
+
+def _wait_until(due: float) -> bool:
+    """Sleep until time.monotonic() reaches `due`, in pieces of MAX_SLEEP_S; False if ROS was shut down meanwhile."""
+    while rclpy.ok() and (delay := due - time.monotonic()) > 0:
+        time.sleep(min(delay, MAX_SLEEP_S))
+    return rclpy.ok()

@@ -7,9 +7,11 @@ import struct
 import zlib
 from pathlib import Path
 
+import apsw
 import lz4.frame
 import numpy as np
 import pytest
+import yaml
 from ament_index_python.packages import get_package_share_directory
 from backports import zstd
 from rclpy.serialization import deserialize_message, serialize_message
@@ -457,6 +459,46 @@ def test_metadata_fields_of_the_wrong_kind_are_refused_naming_the_file(sim_bag, 
     with pytest.raises(BagError, match=re.escape(message)) as refused:
         BagReader(bag)
     assert "metadata.yaml" in str(refused.value)
+
+
+def test_metadata_listing_its_files_as_text_is_refused_before_anything_is_read(sim_bag, tmp_path):
+    """rosbags opened such a bag and failed as it closed it: an AttributeError traceback (review)."""
+    bag = copy_bag(sim_bag, tmp_path / "files_as_text")
+    metadata = bag / "metadata.yaml"
+    information = yaml.safe_load(metadata.read_text())
+    information["rosbag2_bagfile_information"]["files"] = "abc"
+    metadata.write_text(yaml.safe_dump(information))
+    with pytest.raises(BagError, match="its metadata.yaml gives `files` as 'abc', not a list of its storage files"):
+        BagReader(bag)
+
+
+def test_a_damaged_sqlite3_bag_is_refused_as_damaged(sim_bag, tmp_path):
+    """rosbags reads a .db3 bag through apsw, whose CorruptError ("database disk image is malformed") ended tactile-bag
+    eval and play in a traceback (review). The first byte of each of the first pages flipped in turn: every damage
+    is read or refused as damaged, and one of them is apsw's."""
+    db3 = tmp_path / "db3"
+    with BagReader(sim_bag) as source:
+        messages, topics = list(source.messages()), dict(source.topics)
+    writer = Writer(db3, version=BAG_VERSION, storage_plugin=StoragePlugin.SQLITE3)
+    writer.open()
+    typestore = bag_typestore(set(topics.values()))
+    connections = {topic: writer.add_connection(topic, kind, typestore=typestore) for topic, kind in topics.items()}
+    for topic, _, time_ns, raw in messages:
+        writer.write(connections[topic], time_ns, raw)
+    writer.close()
+    database = next(db3.glob("*.db3"))
+    intact = database.read_bytes()
+    apsw_errors = 0
+    for page in range(1, 41):
+        damaged = bytearray(intact)
+        damaged[page * 4096] ^= 0xFF
+        database.write_bytes(bytes(damaged))
+        try:
+            with BagReader(db3) as bag:
+                sum(1 for _ in bag.messages())
+        except BagError as exc:
+            apsw_errors += isinstance(exc.__cause__, apsw.Error)
+    assert apsw_errors > 0
 
 
 def test_a_topic_recorded_with_another_definition_of_its_type_is_refused(tmp_path):

@@ -6,6 +6,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -130,6 +131,27 @@ def test_play_itself_refuses_a_rate_below_the_slowest(sim_bag):
     """At --rate 1e-300 the bag's 25 ms frame period became a sleep beyond what time.sleep takes (OverflowError)."""
     with pytest.raises(ValueError, match=r"--rate must be a finite number >= 0\.001, got 1e-300"):
         play(sim_bag, rate=1e-300)
+
+
+@pytest.mark.parametrize(("messages", "played"), [(1, (2, 3, 4)), (3, (10, 11, 12))])
+def test_a_looped_bag_starts_over_one_period_after_its_last_message(tmp_path, messages, played):
+    """A pass went straight on into the next: one message was published 160000 times in 3 s (review), and a bag's
+    first message followed its last at once. Now a pass lasts one period of its topics more than its messages span
+    (one message: a second). In 2.5 s a message alone goes out at 0, 1 and 2 s; in 1.05 s three 0.1 s apart go out
+    at 0, 0.1, ..., 1.0 s (back to back before: 16 times)."""
+    image = serialize_message(Image(height=1, width=1, encoding="mono8", step=1, data=[7]))
+    with BagWriter(tmp_path / "bag") as bag:
+        for k in range(messages):
+            bag.write("/tactile/cam0/image", IMAGE_TYPE, 1_700_000_000 * 10**9 + k * 100_000_000, image)
+    rclpy.init()
+    stop = threading.Timer(2.5 if messages == 1 else 1.05, rclpy.shutdown)
+    try:
+        stop.start()
+        counts = play(tmp_path / "bag", loop=True, wait_subscribers_s=0.0)
+    finally:
+        stop.cancel()
+        rclpy.try_shutdown()
+    assert counts["/tactile/cam0/image"] in played, counts
 
 
 def test_play_stops_on_sigterm_during_a_long_gap(tmp_path):

@@ -368,3 +368,27 @@ def test_a_named_truth_topic_must_be_in_the_bag(sim_bag, model_dir, capsys):
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--truth-topic",
                  "/tactile/truth"]) == 2
     assert "has no topic /tactile/truth; its topics are" in capsys.readouterr().err
+    # an empty name was taken for the default topic without a word (review)
+    assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--truth-topic", ""]) == 2
+    assert "topic name '' is empty; give e.g. /tactile/image_bundle" in capsys.readouterr().err
+
+
+def test_images_of_cameras_the_description_does_not_name_are_named_not_evaluated(tmp_path, write_bag, sensor,
+                                                                                 sim_frames, model_dir, capsys):
+    """Five more cameras' images in the bag were left out without a word (review); now the summary and stderr name
+    their topics."""
+    write_bag(tmp_path / "clean", sensor, sim_frames)
+    stray = serialize_message(mono8_to_msg(sim_frames[0].images[0], Time(sec=1_700_000_000), "cam4_optical"))
+    with BagReader(tmp_path / "clean") as clean, BagWriter(tmp_path / "bag") as bag:
+        for topic, _, time_ns, raw in clean.messages(list(clean.topics)):
+            bag.write(topic, clean.topics[topic], time_ns, raw)
+        for camera in ("cam4", "cam5"):
+            bag.write(camera_topic(camera), IMAGE_TYPE, 1_700_000_000 * 10**9, stray)
+    assert main(["eval", str(tmp_path / "bag"), "--model", str(model_dir), "--backend", "torch", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["other_image_topics"] == ["/tactile/cam4/image", "/tactile/cam5/image"]
+    assert "tactile-bag eval: the bag also holds images on /tactile/cam4/image, /tactile/cam5/image, not evaluated: " \
+        "the cameras of another sensor description than" in err
+    assert main(["eval", str(tmp_path / "clean"), "--model", str(model_dir), "--backend", "torch", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["other_image_topics"] == [] and "also holds images" not in err
