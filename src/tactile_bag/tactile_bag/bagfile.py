@@ -37,10 +37,10 @@ BAG_VERSION = 9
 #: (EOFError) or are not zstd (ZstdError, e.g. metadata that claims zstd over a plain .mcap), and on an lz4 MCAP chunk
 #: whose bytes are not an lz4 frame (the lz4 package raises a plain RuntimeError), and on a record length damaged
 #: into one too large to allocate (MemoryError: one byte of the MCAP header record's length set to 0x7f), and on a
-#: damaged sqlite3 (.db3) file, read through apsw (apsw.CorruptError "database disk image is malformed": a traceback
-#: before, review).
+#: damaged sqlite3 (.db3) file, read through apsw ("database disk image is malformed": a traceback before, review;
+#: its errors that say nothing of damage, such as a locked file, are not taken for it).
 DAMAGED_BAG_ERRORS = (ReaderError, OSError, ValueError, ArithmeticError, IndexError, KeyError, struct.error, EOFError,
-                      ZstdError, RuntimeError, MemoryError, apsw.Error)
+                      ZstdError, RuntimeError, MemoryError, apsw.CorruptError, apsw.NotADBError)
 #: What rosbags' Reader.open raises on a metadata.yaml whose fields are of the wrong kind: a number quoted (a
 #: TypeError inside rosbags), a number as a type name (AttributeError).
 METADATA_KIND_ERRORS = (TypeError, AttributeError)

@@ -100,7 +100,8 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(args.model, args.backend)
     # `is not None`: an empty --truth-topic is refused (absolute_topic), not taken for the default (review)
-    truth_topic = absolute_topic(args.truth_topic) if args.truth_topic is not None else GROUND_TRUTH_TOPIC
+    truth_topic = (absolute_topic(args.truth_topic, GROUND_TRUTH_TOPIC) if args.truth_topic is not None
+                   else GROUND_TRUTH_TOPIC)
     check_fits(predictor, sensor)  # before the warning, which would name the cameras of a model of others
     changes = sensor_changes(predictor.made_for, sensor)
     warning = sensor_changes_warning(changes, sensor)

@@ -29,8 +29,8 @@ MIN_RATE = 1e-3
 #: days in the bag at MIN_RATE) is slept in pieces instead of raising OverflowError.
 MAX_SLEEP_S = 0.25
 
-#: How often a looped bag whose topics hold one message each starts over (s, at rate 1): such a bag has no period of
-#: its own, and without a pause it was published as fast as the CPU went (160000 times in 3 s; review).
+#: How often a looped bag starts over whose topics have no period (s, at rate 1): one message each, or several received
+#: at one time. Without a pause such a bag was published as fast as the CPU went (160000 times in 3 s; reviews).
 SINGLE_MESSAGE_LOOP_S = 1.0
 
 
@@ -100,8 +100,8 @@ def _play_once(bag: BagReader, topics: list[str], publishers: dict, counts: dict
 
 def _loop_period_ns(seen: dict[str, list[int]]) -> float:
     """The pause between two passes of a loop: the median over the topics of the mean time between their messages, or
-    SINGLE_MESSAGE_LOOP_S where every topic has one message."""
-    periods = sorted((last - first) / (n - 1) for first, last, n in seen.values() if n > 1)
+    SINGLE_MESSAGE_LOOP_S where no topic has two messages at different times."""
+    periods = sorted((last - first) / (n - 1) for first, last, n in seen.values() if last > first)
     return periods[len(periods) // 2] if periods else SINGLE_MESSAGE_LOOP_S * 1e9
 
 

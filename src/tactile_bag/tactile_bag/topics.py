@@ -36,11 +36,12 @@ def default_record_topics(sensor: SensorDescription) -> list[str]:
     return [*(camera_topic(c) for c in sensor.camera_ids), BUNDLE_TOPIC, ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC]
 
 
-def absolute_topic(name: str) -> str:
-    """A topic name as the graph resolves it in the root namespace ('tactile/x' -> '/tactile/x')."""
+def absolute_topic(name: str, example: str = BUNDLE_TOPIC) -> str:
+    """A topic name as the graph resolves it in the root namespace ('tactile/x' -> '/tactile/x'); an empty one is
+    refused, with `example` as the name to give instead."""
     name = name.strip()
     if not name or name == "/":
-        raise ValueError(f"topic name {name!r} is empty; give e.g. {BUNDLE_TOPIC}")
+        raise ValueError(f"topic name {name!r} is empty; give e.g. {example}")
     return name if name.startswith("/") else "/" + name
 
 

@@ -22,6 +22,7 @@ from tactile_bag.cli import main
 from tactile_bag.play import play
 from tactile_bag.record import record
 from tactile_bag.topics import IMAGE_TYPE
+from tactile_conversions.stop_signals import init_ros
 from tactile_fusion.artifacts import STATE_DICT
 
 
@@ -133,24 +134,28 @@ def test_play_itself_refuses_a_rate_below_the_slowest(sim_bag):
         play(sim_bag, rate=1e-300)
 
 
-@pytest.mark.parametrize(("messages", "played"), [(1, (2, 3, 4)), (3, (10, 11, 12))])
-def test_a_looped_bag_starts_over_one_period_after_its_last_message(tmp_path, messages, played):
-    """A pass went straight on into the next: one message was published 160000 times in 3 s (review), and a bag's
-    first message followed its last at once. Now a pass lasts one period of its topics more than its messages span
-    (one message: a second). In 2.5 s a message alone goes out at 0, 1 and 2 s; in 1.05 s three 0.1 s apart go out
-    at 0, 0.1, ..., 1.0 s (back to back before: 16 times)."""
+@pytest.mark.parametrize(("offsets_s", "played"), [((0.0,), (2, 3, 4)), ((0.0, 0.0), (4, 6)),
+                                                    ((0.0, 0.1, 0.2), (10, 11, 12))])
+def test_a_looped_bag_starts_over_one_period_after_its_last_message(tmp_path, offsets_s, played):
+    """A pass went straight on into the next: one message was published 160000 times in 3 s, and so were two received
+    at one time (reviews), and a bag's first message followed its last at once. Now a pass lasts one period of its
+    topics more than its messages span (no period: a second). In 2.5 s a message alone goes out at 0, 1 and 2 s, a
+    pair at one time twice as often; in 1.05 s three 0.1 s apart go out at 0, 0.1, ..., 1.0 s (back to back before:
+    16 times)."""
     image = serialize_message(Image(height=1, width=1, encoding="mono8", step=1, data=[7]))
     with BagWriter(tmp_path / "bag") as bag:
-        for k in range(messages):
-            bag.write("/tactile/cam0/image", IMAGE_TYPE, 1_700_000_000 * 10**9 + k * 100_000_000, image)
-    rclpy.init()
-    stop = threading.Timer(2.5 if messages == 1 else 1.05, rclpy.shutdown)
+        for offset_s in offsets_s:
+            bag.write("/tactile/cam0/image", IMAGE_TYPE, 1_700_000_000 * 10**9 + round(offset_s * 1e9), image)
+    python_handler = signal.getsignal(signal.SIGINT)
+    init_ros()  # as the command starts ROS: a shutdown during a publish is a stop (stop_signals)
+    stop = threading.Timer(1.05 if len(offsets_s) == 3 else 2.5, rclpy.shutdown)
     try:
         stop.start()
         counts = play(tmp_path / "bag", loop=True, wait_subscribers_s=0.0)
     finally:
         stop.cancel()
         rclpy.try_shutdown()
+        signal.signal(signal.SIGINT, python_handler)
     assert counts["/tactile/cam0/image"] in played, counts
 
 

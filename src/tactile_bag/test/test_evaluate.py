@@ -370,7 +370,7 @@ def test_a_named_truth_topic_must_be_in_the_bag(sim_bag, model_dir, capsys):
     assert "has no topic /tactile/truth; its topics are" in capsys.readouterr().err
     # an empty name was taken for the default topic without a word (review)
     assert main(["eval", str(sim_bag), "--model", str(model_dir), "--backend", "torch", "--truth-topic", ""]) == 2
-    assert "topic name '' is empty; give e.g. /tactile/image_bundle" in capsys.readouterr().err
+    assert "topic name '' is empty; give e.g. /tactile/ground_truth/force_distribution" in capsys.readouterr().err
 
 
 def test_images_of_cameras_the_description_does_not_name_are_named_not_evaluated(tmp_path, write_bag, sensor,

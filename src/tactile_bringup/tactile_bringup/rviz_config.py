@@ -8,6 +8,7 @@ frame). `config/tactile.rviz` is this configuration for the reference sensor, to
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import yaml
@@ -31,13 +32,14 @@ def grid_display(sensor: SensorDescription) -> dict:
 
     RViz draws a Grid's lines at offset - count * size / 2 + i * size, i = 0..count (rviz_rendering's
     Grid::createGridPlane), in both directions alike: with the offset at count * size / 2 they start at 0. The cells
-    are as wide as a bin, and as many each way as the grid has bins along its longer side: where bins are not square,
-    the lines across x fall on the bins' edges and those across y do not (the reference sensor's bins are 1.96 mm
-    along x and 1.96 mm along y, to 2 um).
+    are as wide as a bin, and as many each way as cover the surface's longer side: where bins are not square, the lines
+    across x fall on the bins' edges and those across y do not (the reference sensor's bins are 1.96 mm along x and
+    1.96 mm along y, to 2 um). A count of the bins along the longer side left most of a surface of long narrow bins
+    uncovered (review); a side that a whole number of cells misses by under a twentieth of a cell takes no more.
     """
     grid = sensor.grid
     size = grid.bin_width_m
-    count = max(grid.cols, grid.rows)
+    count = max(grid.cols, math.ceil(max(grid.width_m, grid.length_m) / size - 0.05))
     half = round(count * size / 2, 9)
     return {"Class": "rviz_default_plugins/Grid", "Name": f"Surface bins ({size * 1e3:.3g} mm)", "Enabled": True,
             "Reference Frame": "<Fixed Frame>", "Plane": "XY", "Cell Size": round(size, 9),

@@ -131,12 +131,14 @@ def test_rviz_config_shows_the_topics_the_fusion_node_publishes(sensor):
     assert markers["Namespaces"] == {MARKER_NAMESPACE: True}
 
 
-def test_the_installed_rviz_config_is_the_reference_sensors(sensor):
+def test_the_installed_rviz_config_is_the_reference_sensors():
     """config/tactile.rviz, for RViz opened without the launch system, is what the launch file writes for the
-    reference sensor (regenerate it with write_rviz_config after a change)."""
+    reference sensor (regenerate it with write_rviz_config after a change): config/sensor.yaml, named here, not
+    TACTILE_SENSOR_CONFIG's description."""
     import yaml
 
-    assert yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text()) == rviz_config(sensor)
+    reference = load_sensor(SHARE / "config" / "sensor.yaml")
+    assert yaml.safe_load((SHARE / "config" / "tactile.rviz").read_text()) == rviz_config(reference)
 
 
 def test_rviz_shows_the_sensor_in_its_own_frame(sensor, tmp_path):
@@ -161,3 +163,14 @@ def test_the_rviz_grid_lines_fall_on_the_bin_edges(sensor_file):
                         ("Y", np.arange(grid.rows + 1) * grid.length_m / grid.rows)):
         lines = bins["Offset"][axis] - count * size / 2 + np.arange(count + 1) * size
         assert np.abs(lines[:, None] - edges[None, :]).min(axis=0).max() < 5e-5, axis  # every edge within 0.05 mm
+
+
+def test_the_rviz_grid_covers_a_surface_of_long_narrow_bins(sensor):
+    """Ten bins of 1 x 10 mm each way over 10 x 100 mm: a grid of ten 1 mm cells covered a tenth of its length
+    (review). Its lines are the columns' edges along x, and they reach the far end along y."""
+    strip = replace(sensor, grid=replace(sensor.grid, rows=10, cols=10, width_m=0.01, length_m=0.1))
+    bins = grid_display(strip)
+    size, count, offset = bins["Cell Size"], bins["Plane Cell Count"], bins["Offset"]
+    lines = -count * size / 2 + np.arange(count + 1) * size
+    assert np.allclose((offset["X"] + lines)[:11], np.arange(11) * 1e-3)
+    assert (offset["Y"] + lines).max() >= 0.1 - 1e-9 and (offset["Y"] + lines).min() == pytest.approx(0.0)

@@ -338,9 +338,8 @@ def _parse(raw: dict, source: str) -> SensorDescription:
     cams.finish()
 
     frame_id = _text(top, "frame_id")
-    if frame_id.startswith("/") or any(c.isspace() for c in frame_id):  # tf2 refuses both
-        raise SensorConfigError(f"{source}.frame_id must be a tf2 frame name, without a leading '/' or spaces, got "
-                                f"{frame_id!r}")
+    if frame_id.startswith("/"):  # tf2 refuses it (BufferCore::validateFrameId)
+        raise SensorConfigError(f"{source}.frame_id must be a tf2 frame name, without a leading '/', got {frame_id!r}")
     description = SensorDescription(name=_text(top, "name"), frame_id=frame_id, grid=grid,
                                     gel_layers=tuple(layers), particles=particles, cameras=tuple(cameras),
                                     frame_rate_hz=frame_rate_hz, source=source)
