@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from rclpy.clock import ClockType
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
@@ -54,6 +55,16 @@ def ros_args_node(ros_domain):
     for node in nodes:
         node.destroy_node()
     rclpy.try_shutdown()
+
+
+def test_the_nodes_keep_their_pace_on_the_steady_clock(ros_args_node):
+    """Timers on the node's ROS clock, the system clock: an NTP step back of 30 s silenced a camera for 30 s, and with
+    use_sim_time and no /clock it never published (review). The stamps stay the node's clock's."""
+    for node_class in (CameraNode, SimCameraNode, BundleNode):
+        node = ros_args_node(node_class, {})
+        assert node.timers and all(t.clock.clock_type == ClockType.STEADY_TIME for t in node.timers), node_class
+        assert node.get_clock().clock_type == ClockType.ROS_TIME
+        rclpy.try_shutdown()
 
 
 def test_integers_from_the_command_line_are_taken_for_float_parameters_and_a_device_index(ros_args_node):

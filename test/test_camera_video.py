@@ -17,11 +17,13 @@ from tactile_description.imaging import crop_and_downsample
 
 pytestmark = pytest.mark.system
 VIDEO_FRAMES = 12
+#: A device index no machine of the tests has.
+MISSING_DEVICE_INDEX = 97
 
 
-def write_video(path, width: int, height: int, frames: int = VIDEO_FRAMES):
+def write_video(path, width: int, height: int, frames: int = VIDEO_FRAMES, fps: float = 40.0):
     """An MJPG AVI (OpenCV's built-in encoder) of a bright disk moving over a smooth background."""
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 40.0, (width, height))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (width, height))
     assert writer.isOpened()
     yy, xx = np.mgrid[0:height, 0:width]
     for i in range(frames):
@@ -203,3 +205,62 @@ def test_a_source_that_appears_later_is_opened_by_the_monotonic_clock_not_the_no
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+@pytest.fixture
+def camera_node_of(ros_domain):
+    """camera_node_of(source, **parameters): a CameraNode of the sensor's first camera in this process."""
+    import rclpy
+
+    from tactile_camera_driver.camera_node import CameraNode
+
+    nodes = []
+
+    def make(source, **parameters):
+        args = ["--ros-args", "-p", f"sensor_config:={default_sensor_path()}", "-p",
+                f"camera_id:={load_sensor().cameras[0].camera_id}", "-p", f"source:={source}"]
+        for name, value in parameters.items():
+            args += ["-p", f"{name}:={value}"]
+        rclpy.init(args=args)
+        nodes.append(CameraNode())
+        return nodes[-1]
+
+    yield make
+    for node in nodes:
+        node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def test_a_video_file_of_another_frame_rate_is_said_to_play_at_rate_hz(camera_node_of, tmp_path, capfd):
+    """A 30 fps file played at 40 Hz, 1.33 times its speed and stamped so, without a word (review)."""
+    camera = load_sensor().cameras[0]
+    video = write_video(tmp_path / "thirty.avi", *camera.capture_size, fps=30.0)
+    assert camera_node_of(video).ensure_open()
+    assert f"video file '{video}' is 30 fps, played at rate_hz 40 Hz: 1.33 times its speed, and stamped so; " \
+        "-p rate_hz:=30 plays it at its own" in capfd.readouterr().err
+    import rclpy
+
+    rclpy.try_shutdown()
+    assert camera_node_of(video, rate_hz=30).ensure_open()
+    assert "fps, played at rate_hz" not in capfd.readouterr().err
+
+
+def test_opencvs_own_messages_are_left_to_errors(camera_node_of, capfd):
+    """An unplugged camera's every retry printed OpenCV's "[ WARN] ... can't open camera by index" beside the node's
+    throttled error (review)."""
+    node = camera_node_of(MISSING_DEVICE_INDEX)
+    for _ in range(3):
+        node.next_open_s = 0.0
+        assert not node.ensure_open()
+    err = capfd.readouterr().err
+    assert "WARN" not in err and err.count(f"cannot open camera source {MISSING_DEVICE_INDEX}") == 1, err
+
+
+def test_a_video_file_that_never_decodes_is_said_to_give_no_frame_not_to_have_ended(camera_node_of, tmp_path, capfd):
+    """With loop false it read "ended (0 frames published)" (review)."""
+    empty = write_video(tmp_path / "empty.avi", *load_sensor().cameras[0].capture_size, frames=0)
+    node = camera_node_of(empty, loop="false")
+    node.grab()
+    err = capfd.readouterr().err
+    assert f"video file '{empty}' gave no frame OpenCV can decode (loop false): publishing nothing" in err, err
+    assert "ended" not in err and node.timer.is_canceled()

@@ -17,6 +17,11 @@ _FPS; a camera that starts in its own default mode, 640 x 480 for many, had ever
 and the node logs the mode it got, which a device may choose nearest to the one asked for (not tried on camera
 hardware: there is none here).
 
+A video file is played at `rate_hz`, not at its own frame rate: the node warns when the two differ (a 30 fps file
+at 40 Hz plays, and is stamped, 1.33 times as fast). A URL (rtsp://, http://) is read as a live stream: one that
+stops delivering is reopened, whatever `loop` says. OpenCV's and FFmpeg's own messages are limited to errors and
+fatal ones (they repeated at every retry, beside the node's throttled lines).
+
 Stamps (not tried on camera hardware): a device is opened with a buffer of one frame (CAP_PROP_BUFFERSIZE;
 OpenCV's V4L2 backend keeps 4 by default, so a node that fell behind would get frames up to 4 periods older than
 their stamps; backends without the property ignore it), and a frame is stamped as soon as grab() returns it,
@@ -25,6 +30,7 @@ before it is decoded, not before read() waits for it.
 
 from __future__ import annotations
 
+import os
 import re
 import time
 from pathlib import Path
@@ -46,12 +52,24 @@ from tactile_conversions.parameters import (
     sensor_description,
     text,
 )
+from tactile_conversions.timers import steady_timer
 from tactile_conversions.topics import camera_frame_id, camera_topic
 from tactile_description.imaging import FrameError, crop_and_downsample
 from tactile_description.value_checks import is_whole_number
 
 #: OpenCV takes a device index as a C int: 2**32 ended the node in cv2.error at its first frame (found in review).
 MAX_DEVICE_INDEX = 2**31 - 1
+
+#: How far a video file's own frame rate may lie from rate_hz before the node says it plays at another speed.
+FILE_RATE_TOLERANCE = 0.01
+
+
+def quiet_opencv() -> None:
+    """Leave OpenCV's and FFmpeg's own messages to errors: "[ WARN] cap_v4l.cpp ... can't open camera by index" at
+    every retry of an unplugged camera, and a damaged file's decoder messages at every replay, went to stderr beside
+    the node's throttled lines (review). FFmpeg reads its level when OpenCV loads it, at the first capture."""
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "8")  # AV_LOG_FATAL
 
 
 def is_video_file(source: int | str) -> bool:
@@ -85,6 +103,7 @@ class CameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_camera")
         self.capture: cv2.VideoCapture | None = None  # first: rclpy destroys the node even if __init__ fails
+        quiet_opencv()
         self.camera_id = text(self, "camera_id", "cam0")
         self.source = self.declare_source()
         self.loop = boolean(self, "loop", True)
@@ -99,7 +118,7 @@ class CameraNode(Node):
         self.next_open_s = 0.0
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
-        self.timer = self.create_timer(1.0 / self.frame_rate_hz, self.grab)
+        self.timer = steady_timer(self, 1.0 / self.frame_rate_hz, self.grab)
         log_sensor_description(self, sensor)
 
     def declare_source(self) -> int | str:
@@ -138,9 +157,20 @@ class CameraNode(Node):
             self.capture = None
             self.next_open_s = time.monotonic() + self.reopen_period_s
             return False
-        self.get_logger().info(f"{self.camera_id}: reading {self.source!r}{self.device_mode()}")
+        self.get_logger().info(f"{self.camera_id}: reading {self.source!r}{self.device_mode()}",
+                               throttle_duration_sec=10.0)
+        self.warn_of_file_rate()
         self.frames_since_rewind = 0
         return True
+
+    def warn_of_file_rate(self) -> None:
+        """Say when a video file's own frame rate is not rate_hz: it is played, and stamped, at rate_hz (review)."""
+        file_fps = self.capture.get(cv2.CAP_PROP_FPS) if is_video_file(self.source) else 0.0
+        if file_fps > 0 and abs(file_fps - self.frame_rate_hz) > FILE_RATE_TOLERANCE * self.frame_rate_hz:
+            self.get_logger().warning(
+                f"{self.camera_id}: video file {self.source!r} is {file_fps:g} fps, played at rate_hz "
+                f"{self.frame_rate_hz:g} Hz: {self.frame_rate_hz / file_fps:.3g} times its speed, and stamped so; "
+                f"-p rate_hz:={file_fps:g} plays it at its own", throttle_duration_sec=60.0)
 
     def device_mode(self) -> str:
         """For a device, the size and rate it delivers, which it may have chosen nearest to those asked for."""
@@ -183,8 +213,12 @@ class CameraNode(Node):
         and so is a video file that gave no frame since it was opened or played again (one that OpenCV opens but
         cannot decode: playing it again would be silent for ever)."""
         if is_video_file(self.source) and not self.loop:
-            self.get_logger().info(f"{self.camera_id}: video file {self.source!r} ended ({self.frames_published} "
-                                   "frames published; loop false): publishing nothing more")
+            if self.frames_since_rewind:  # decoded, of any size (a file of the wrong size has its own errors)
+                self.get_logger().info(f"{self.camera_id}: video file {self.source!r} ended ({self.frames_published} "
+                                       "frames published; loop false): publishing nothing more")
+            else:  # "ended (0 frames published)" for a file never decoded (review)
+                self.get_logger().error(f"{self.camera_id}: video file {self.source!r} gave no frame OpenCV can "
+                                        "decode (loop false): publishing nothing")
             self.timer.cancel()
             self.capture.release()
             self.capture = None
@@ -192,7 +226,8 @@ class CameraNode(Node):
         if is_video_file(self.source) and self.frames_since_rewind and self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0):
             self.frames_since_rewind = 0
             return True  # played again from the start
-        self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening")
+        self.get_logger().warning(f"{self.camera_id}: {self.source!r} delivered no frame; reopening",
+                                  throttle_duration_sec=10.0)
         self.capture.release()
         self.capture = None
         self.next_open_s = time.monotonic() + self.reopen_period_s

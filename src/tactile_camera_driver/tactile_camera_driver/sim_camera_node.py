@@ -46,6 +46,7 @@ from tactile_conversions.parameters import (
     text,
 )
 from tactile_conversions.ros_time import seconds_to_time
+from tactile_conversions.timers import steady_timer
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_frame_id, camera_topic
 from tactile_description import FORCE_COMPONENTS, SensorConfigError
 from tactile_msgs.msg import ForceDistribution
@@ -74,7 +75,7 @@ class SimCameraNode(Node):
                            for c in self.sensor.camera_ids}
         self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
         self.playing = False  # until its listeners are there (module docstring, `listened`)
-        self.timer = self.create_timer(1.0 / frame_rate_hz, self.publish_frame)
+        self.timer = steady_timer(self, 1.0 / frame_rate_hz, self.publish_frame)
         awaited = f" and nodes {list(self.awaited_nodes)} subscribe" if self.awaited_nodes else " are subscribed"
         log_sensor_description(self, self.sensor)
         self.get_logger().info(f"simulating scene {self.scene_name!r} ({len(self.scene)} frames) at "

@@ -42,6 +42,7 @@ from tactile_conversions.parameters import (
     whole_number,
 )
 from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
+from tactile_conversions.timers import steady_timer
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
 from tactile_fusion.camera_rates import CameraPeriods, SyncSettings, period_misfits
@@ -87,8 +88,8 @@ class BundleNode(Node):
         for camera_id in self.sensor.camera_ids:
             self.create_subscription(Image, camera_topic(camera_id),
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
-        self.create_timer(max(self.camera_timeout_s / 2, CAMERA_CHECK_MIN_PERIOD_S), self.check_cameras)
-        self.create_timer(1.0, self.report_drops)
+        steady_timer(self, max(self.camera_timeout_s / 2, CAMERA_CHECK_MIN_PERIOD_S), self.check_cameras)
+        steady_timer(self, 1.0, self.report_drops)
         log_sensor_description(self, self.sensor)
         self.get_logger().info(f"bundling cameras {list(self.sensor.camera_ids)} "
                                f"(max spread {self.max_spread_s * 1e3:.1f} ms, a grouping kept while within "
