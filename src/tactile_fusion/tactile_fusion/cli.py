@@ -153,6 +153,20 @@ def _named_by_option(message: str, args) -> str:
     return re.sub(r"(?:TrainConfig\.|ModelConfig: )(\w+)", option, message)
 
 
+def _checkpoint_settings_by_option(message: str, args) -> str:
+    """A checkpoint's refusal of other training settings ("... other training settings: max_epochs 3 (now 4); ...")
+    naming the command-line options (--epochs), as _named_by_option does for a settings error (review)."""
+    head, sep, tail = message.partition("other training settings: ")
+    settings, sep2, rest = tail.partition("; ")
+
+    def option(match: re.Match) -> str:
+        field = match[1]
+        if field in OPTION_OF_FIELD:
+            return OPTION_OF_FIELD[field]
+        return "--" + field.replace("_", "-") if field in vars(args) else field
+    return head + sep + re.sub(r"(?:^|(?<=, ))(\w+)(?= )", option, settings) + sep2 + rest if sep else message
+
+
 def _fractions(text: str) -> list[float]:
     """--fractions: comma-separated data fractions in (0, 1], checked before the base model trains for minutes."""
     from tactile_fusion.recalibration import checked_fractions
@@ -189,6 +203,7 @@ def _further_draws(args, sensor):
 
 def cmd_train(args) -> int:
     from tactile_fusion.pipeline import (
+        CHECKPOINTS,
         DEFAULT_SCENE,
         check_fresh,
         check_resumable,
@@ -198,6 +213,9 @@ def cmd_train(args) -> int:
     )
 
     (check_resumable if args.resume else check_fresh)(args.out)
+    if args.resume and not any(Path(args.out).glob(CHECKPOINTS)):  # a mistyped --out trained afresh unsaid (review)
+        print(f"tactile-fusion train: --resume: {args.out} holds no checkpoint: training from scratch",
+              file=sys.stderr)
     _threads(args)
     sensor = load_sensor(args.sensor)
     args.image_size = _image_size(sensor, args)
@@ -214,8 +232,12 @@ def cmd_train(args) -> int:
               + ("; take more frames (--frames)" if limited else ""), file=sys.stderr)
     # Absolute paths, so that `export` finds the same data from anywhere (installed scenes go by name).
     source = f"dataset {Path(args.dataset).resolve()}" if args.dataset else scene_source(args.scene)
-    metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
-                               progress=not args.quiet, threads=args.threads, data_source=source, head_extra=head_extra)
+    try:
+        metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
+                                   progress=not args.quiet, threads=args.threads, data_source=source,
+                                   head_extra=head_extra)
+    except CheckpointMismatchError as exc:
+        raise CheckpointMismatchError(_checkpoint_settings_by_option(str(exc), args)) from exc
     print(metrics_table({f"{splits['test'].scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
     description = read_model_json(args.out)
@@ -252,8 +274,9 @@ def _eval_sets(args, sensor, model_dir: Path) -> tuple[list[tuple[str, object]],
         sets = [(f"{frames.scene} test split", frames)]
     else:
         test, source, note = held_out_split(model_dir, sensor, "test", args.frames, progress)
-        if note and not (args.json or args.quiet):
-            print(f"evaluating on the {source} test split{note}")
+        if note:  # on stderr with --json or --quiet: it went unsaid there (review)
+            print(f"evaluating on the {source} test split{note}", file=sys.stderr if args.json or args.quiet
+                  else sys.stdout)
         sets = [(f"{test.scene} test split", test)]
     skipped = {}
     for name in HARD_CASE_SCENES if args.hard_cases else ():

@@ -75,7 +75,7 @@ class ForcePredictor:
         camera_ok: (C,) bool, False for a camera known to be broken (dropped, frozen): it is shown at rest
         (`camera_out.rest_view`), i.e. that camera reports "no contact" and the other cameras carry the estimate.
         """
-        ok = None if camera_ok is None else np.asarray(camera_ok, dtype=bool)[None]
+        ok = None if camera_ok is None else np.asarray(camera_ok)[None]
         images = self._checked(images, "images", camera_ids, batched=False)[None]
         reference = self._checked(reference, "reference", camera_ids, batched=False)
         return self._finite(self._run(self._masked(images, reference, ok, camera_ids), reference))[0]
@@ -93,9 +93,14 @@ class ForcePredictor:
         shown at rest (`camera_out.with_cameras_at_rest`)."""
         ok = None
         if camera_ok is not None:
-            ok = np.asarray(camera_ok, dtype=bool)
+            ok = np.asarray(camera_ok)
             if ok.shape != images.shape[:2]:
                 raise InputError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")
+            # As bool, any string, NaN or 2 was True: the camera meant to be out was read as it was (review)
+            if ok.dtype != bool and not (np.issubdtype(ok.dtype, np.integer) and np.isin(ok, (0, 1)).all()):
+                raise InputError(f"camera_ok: expected True or False (or 1 or 0) per camera, got {ok.dtype} values "
+                                 f"{np.unique(ok).tolist()[:5]}")
+            ok = ok.astype(bool)
             if camera_ids is not None:
                 ok = ok[:, self._order(camera_ids)]
         return with_cameras_at_rest(images, reference, ok)

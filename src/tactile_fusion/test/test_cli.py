@@ -391,6 +391,11 @@ def test_export_measure_without_a_training_record_measures_the_default_scene_and
     assert ("figures of the test split of scene paper_grid (the model directory has no training.json) written to "
             f"{bare / METRICS_JSON}") in result.stdout
     assert json.loads((bare / METRICS_JSON).read_text())["data"]["source"] == "scene paper_grid"
+    # eval says so too, on stderr where its output is JSON (it went unsaid there; review)
+    result = run("eval", "--model", str(bare), "--frames", "30", "--json")
+    assert "evaluating on the scene paper_grid test split (the model directory has no training.json)" in \
+        result.stderr
+    json.loads(result.stdout)
 
 
 def test_export_measure_refuses_a_model_whose_training_data_is_gone(tiny_model, tmp_path):
@@ -537,6 +542,29 @@ def test_resuming_from_a_checkpoint_of_another_model_is_refused_with_a_clear_err
                  *TINY, check=False)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "tactile-fusion train: error: checkpoint" in result.stderr and "delete the checkpoint" in result.stderr
+
+
+def test_resume_into_a_directory_without_checkpoints_says_it_trains_from_scratch(tmp_path):
+    """A mistyped --out with --resume trained afresh without a word: 30 minutes on the default scene (review)."""
+    out = tmp_path / "typo"
+    result = run("train", "--frames", "30", "--epochs", "1", "--head-epochs", "1", "--resume", "--out", str(out),
+                 *TINY)
+    assert f"tactile-fusion train: --resume: {out} holds no checkpoint: training from scratch" in result.stderr
+    assert (out / MODEL_JSON).is_file()
+
+
+def test_a_checkpoints_other_settings_are_named_by_their_options():
+    """"max_epochs 3 (now 4)" named a setting no option has (--epochs; review)."""
+    from tactile_fusion.cli import _checkpoint_settings_by_option, build_parser
+
+    args = build_parser().parse_args(["train", "--out", "x"])
+    message = ("checkpoint /m/checkpoint_head.pt was written with other training settings: max_epochs 3 (now 4), "
+               "learning_rate 0.002 (now 0.001), head_noise_sigma 1.2 (now 0.0), loss_eps 1e-08 (now 1e-06); resume "
+               "with the same settings, or delete it and the checkpoints of the phases after it")
+    assert _checkpoint_settings_by_option(message, args) == message.replace("max_epochs", "--epochs").replace(
+        "learning_rate", "--learning-rate").replace("head_noise_sigma", "--head-noise-sigma")
+    other = "checkpoint /m/checkpoint_end_to_end.pt was trained on other data: frames 30 (now 60)"
+    assert _checkpoint_settings_by_option(other, args) == other
 
 
 def stopped_train(out: Path, stop: signal.Signals, when, *args) -> subprocess.CompletedProcess:
