@@ -131,6 +131,8 @@ def write_image_sequence(directory, width: int, height: int):
 def test_video_files_and_image_sequences_are_read_as_files():
     assert is_video_file(__file__) and is_video_file("/no/such/dir/img_%04d.png")
     assert not is_video_file("/dev/video0") and not is_video_file(0) and not is_video_file("/no/such/file.avi")
+    # a URL's percent-encoding is no image sequence: it was, and followed loop like a file (review)
+    assert not is_video_file("rtsp://user:p%40ss@192.168.1.5/stream")
 
 
 @pytest.mark.parametrize("kind", ["video", "image sequence"])
@@ -180,7 +182,8 @@ def test_no_such_file_is_said_of_a_path_that_names_nothing_only(tmp_path):
     file: OpenCV opens rtsp:// and http:// through FFmpeg; found in review)."""
     assert missing_file(str(tmp_path / "no_such_file.avi")) == ", no such file"
     video = write_video(tmp_path / "there.avi", 320, 240)
-    for source in (0, str(tmp_path / "img_%04d.png"), str(video), "rtsp://192.168.1.5/stream"):
+    for source in (0, str(tmp_path / "img_%04d.png"), str(video), "rtsp://192.168.1.5/stream",
+                   "rtsp://user:p%40ss@192.168.1.5/stream"):
         assert missing_file(source) == "", source
 
 
@@ -264,3 +267,42 @@ def test_a_video_file_that_never_decodes_is_said_to_give_no_frame_not_to_have_en
     err = capfd.readouterr().err
     assert f"video file '{empty}' gave no frame OpenCV can decode (loop false): publishing nothing" in err, err
     assert "ended" not in err and node.timer.is_canceled()
+
+
+def test_an_image_sequence_is_not_said_to_play_at_another_rate(camera_node_of, tmp_path, capfd):
+    """FFmpeg reports 25 fps for an image sequence, which has no rate of its own: every one was said to play 1.6
+    times as fast (review)."""
+    camera = load_sensor().cameras[0]
+    assert camera_node_of(write_image_sequence(tmp_path / "sequence", *camera.capture_size)).ensure_open()
+    assert "fps, played at rate_hz" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("node_kind", ["camera_node", "sim_camera_node"])
+def test_a_camera_whose_clock_reads_zero_publishes_nothing_and_says_why(ros_domain, tmp_path, capfd, node_kind):
+    """With use_sim_time and no /clock the steady timers fire and the stamps are 0: frames stamped 0 went out without a
+    word (review). They wait for the clock, saying so."""
+    import rclpy
+
+    from tactile_camera_driver.camera_node import CameraNode
+    from tactile_camera_driver.sim_camera_node import SimCameraNode
+
+    camera = load_sensor().cameras[0]
+    args = ["--ros-args", "-p", f"sensor_config:={default_sensor_path()}", "-p", "use_sim_time:=true"]
+    if node_kind == "camera_node":
+        video = write_video(tmp_path / "clip.avi", *camera.capture_size)
+        args += ["-p", f"camera_id:={camera.camera_id}", "-p", f"source:={video}"]
+    else:
+        args += ["-p", "wait_for_nodes:=''"]
+    rclpy.init(args=args)
+    try:
+        node = CameraNode() if node_kind == "camera_node" else SimCameraNode()
+        tick = node.grab if node_kind == "camera_node" else node.publish_frame
+        for _ in range(3):
+            tick()
+        assert getattr(node, "frames_published", 0) == 0 and getattr(node, "capture", None) is None
+        assert not getattr(node, "playing", False)
+        assert "the node's clock reads 0 (use_sim_time true, and no /clock published yet?): no frame is published " \
+            "until it runs" in capfd.readouterr().err
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()

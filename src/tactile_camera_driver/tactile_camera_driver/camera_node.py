@@ -19,8 +19,8 @@ hardware: there is none here).
 
 A video file is played at `rate_hz`, not at its own frame rate: the node warns when the two differ (a 30 fps file
 at 40 Hz plays, and is stamped, 1.33 times as fast). A URL (rtsp://, http://) is read as a live stream: one that
-stops delivering is reopened, whatever `loop` says. OpenCV's and FFmpeg's own messages are limited to errors and
-fatal ones (they repeated at every retry, beside the node's throttled lines).
+stops delivering is reopened, whatever `loop` says. OpenCV's own messages are limited to errors and FFmpeg's to fatal
+ones (they repeated at every retry, beside the node's throttled lines).
 
 Stamps (not tried on camera hardware): a device is opened with a buffer of one frame (CAP_PROP_BUFFERSIZE;
 OpenCV's V4L2 backend keeps 4 by default, so a node that fell behind would get frames up to 4 periods older than
@@ -52,7 +52,7 @@ from tactile_conversions.parameters import (
     sensor_description,
     text,
 )
-from tactile_conversions.timers import steady_timer
+from tactile_conversions.timers import clock_running, steady_timer
 from tactile_conversions.topics import camera_frame_id, camera_topic
 from tactile_description.imaging import FrameError, crop_and_downsample
 from tactile_description.value_checks import is_whole_number
@@ -65,24 +65,37 @@ FILE_RATE_TOLERANCE = 0.01
 
 
 def quiet_opencv() -> None:
-    """Leave OpenCV's and FFmpeg's own messages to errors: "[ WARN] cap_v4l.cpp ... can't open camera by index" at
-    every retry of an unplugged camera, and a damaged file's decoder messages at every replay, went to stderr beside
-    the node's throttled lines (review). FFmpeg reads its level when OpenCV loads it, at the first capture."""
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    """Leave OpenCV's own messages to errors and FFmpeg's to fatal ones: "[ WARN] cap_v4l.cpp ... can't open camera by
+    index" at every retry of an unplugged camera, and a damaged file's decoder errors at every replay, went to stderr
+    beside the node's throttled lines (review); the node says what it cannot read. A level the user set
+    (OPENCV_LOG_LEVEL, OPENCV_FFMPEG_LOGLEVEL) stays. FFmpeg's is read once per process, at its first capture."""
+    if "OPENCV_LOG_LEVEL" not in os.environ:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "8")  # AV_LOG_FATAL
+
+
+def is_url(source: int | str) -> bool:
+    """Whether `source` is a stream's URL (rtsp://, http://): read as a live stream, whatever it holds."""
+    return isinstance(source, str) and "://" in source
+
+
+def is_image_sequence(source: int | str) -> bool:
+    """Whether `source` is an OpenCV image sequence: a printf pattern such as "img_%04d.png", which names no file
+    itself (a URL's percent-encoding, "p%40ss", is none)."""
+    return isinstance(source, str) and "%" in source and not is_url(source)
 
 
 def is_video_file(source: int | str) -> bool:
     """Whether `source` is read like a file (it ends, is rewound, keeps no frame buffer): a video file, or an
-    OpenCV image sequence (a printf pattern such as "img_%04d.png", which names no file itself)."""
-    return isinstance(source, str) and (Path(source).is_file() or "%" in source)
+    image sequence."""
+    return isinstance(source, str) and not is_url(source) and (Path(source).is_file() or is_image_sequence(source))
 
 
 def missing_file(source: int | str) -> str:
     """", no such file" for a path that names nothing (a mistyped video file, or a device not plugged in yet), else
     "": a source that exists and cannot be opened is another matter (a busy device, an unreadable video), and so is a
     stream's URL (rtsp://...), which names no file."""
-    if isinstance(source, str) and "%" not in source and "://" not in source and not Path(source).exists():
+    if isinstance(source, str) and not (is_image_sequence(source) or is_url(source)) and not Path(source).exists():
         return ", no such file"
     return ""
 
@@ -164,8 +177,11 @@ class CameraNode(Node):
         return True
 
     def warn_of_file_rate(self) -> None:
-        """Say when a video file's own frame rate is not rate_hz: it is played, and stamped, at rate_hz (review)."""
-        file_fps = self.capture.get(cv2.CAP_PROP_FPS) if is_video_file(self.source) else 0.0
+        """Say when a video file's own frame rate is not rate_hz: it is played, and stamped, at rate_hz (review). An
+        image sequence has none (FFmpeg reports its default, 25 fps)."""
+        if not is_video_file(self.source) or is_image_sequence(self.source):
+            return
+        file_fps = self.capture.get(cv2.CAP_PROP_FPS)
         if file_fps > 0 and abs(file_fps - self.frame_rate_hz) > FILE_RATE_TOLERANCE * self.frame_rate_hz:
             self.get_logger().warning(
                 f"{self.camera_id}: video file {self.source!r} is {file_fps:g} fps, played at rate_hz "
@@ -181,7 +197,7 @@ class CameraNode(Node):
                 f"{self.camera.capture_size[0]} x {self.camera.capture_size[1]} px, {self.frame_rate_hz:g} fps)")
 
     def grab(self) -> None:
-        if not self.ensure_open():
+        if not clock_running(self) or not self.ensure_open():
             return
         frame, stamp = self.read_frame()
         if frame is None and self.on_no_frame():  # a video file played again: its first frame in this tick

@@ -46,7 +46,7 @@ from tactile_conversions.parameters import (
     text,
 )
 from tactile_conversions.ros_time import seconds_to_time
-from tactile_conversions.timers import steady_timer
+from tactile_conversions.timers import clock_running, steady_timer
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_frame_id, camera_topic
 from tactile_description import FORCE_COMPONENTS, SensorConfigError
 from tactile_msgs.msg import ForceDistribution
@@ -131,6 +131,8 @@ class SimCameraNode(Node):
         return jitter_s
 
     def publish_frame(self) -> None:
+        if not clock_running(self):
+            return
         if not self.playing:
             if not self.listened():
                 return

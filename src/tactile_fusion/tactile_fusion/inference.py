@@ -97,9 +97,9 @@ class ForcePredictor:
             if ok.shape != images.shape[:2]:
                 raise InputError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")
             # As bool, any string, NaN or 2 was True: the camera meant to be out was read as it was (review)
-            if ok.dtype != bool and not (np.issubdtype(ok.dtype, np.integer) and np.isin(ok, (0, 1)).all()):
+            if ok.dtype != bool and not (ok.dtype.kind in "iuf" and np.isin(ok, (0, 1)).all()):
                 raise InputError(f"camera_ok: expected True or False (or 1 or 0) per camera, got {ok.dtype} values "
-                                 f"{np.unique(ok).tolist()[:5]}")
+                                 f"{ok.ravel().tolist()[:8]}")
             ok = ok.astype(bool)
             if camera_ids is not None:
                 ok = ok[:, self._order(camera_ids)]

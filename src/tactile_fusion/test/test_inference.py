@@ -142,8 +142,9 @@ def test_a_camera_marked_broken_is_shown_at_rest(model_dir):
     with pytest.raises(InputError, match="camera_ok"):
         predictor.predict_batch(frames.images[:2], reference, camera_ok=np.ones(2, dtype=bool))
     # 1 and 0 mean what True and False do; strings, NaN or 2 were read as True, the broken camera as it was (review)
-    np.testing.assert_array_equal(predictor.predict(images, reference, camera_ok=np.array([1, 0])), masked)
-    for bad in (["True", "False"], [1.0, np.nan], [1, 2]):
+    for same in (np.array([1, 0]), np.array([1.0, 0.0]), [np.bool_(True), False]):
+        np.testing.assert_array_equal(predictor.predict(images, reference, camera_ok=same), masked)
+    for bad in (["True", "False"], [1, np.nan], [1, 2], [True, None]):
         with pytest.raises(InputError, match=r"camera_ok: expected True or False \(or 1 or 0\) per camera, got"):
             predictor.predict(images, reference, camera_ok=bad)
 
