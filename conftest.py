@@ -23,3 +23,10 @@ def stop_signals_fail_the_test():
     yield
     for number, handler in previous.items():
         signal.signal(number, handler)
+
+
+@pytest.fixture(autouse=True)
+def reference_sensor_description(monkeypatch):
+    """Every test runs on the installed reference description, whatever TACTILE_SENSOR_CONFIG the shell gives: tests
+    name its cameras, grid and frame rate (with skin_3x3's several failed; review). Tests of the variable set it."""
+    monkeypatch.delenv("TACTILE_SENSOR_CONFIG", raising=False)

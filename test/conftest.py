@@ -12,6 +12,20 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 
+@pytest.fixture(autouse=True)
+def opencv_logging_restored(monkeypatch):
+    """A camera node built in this process sets OpenCV's log level and FFmpeg's (camera_node.quiet_opencv), which
+    outlived the test into later ones and their child processes (review): both are put back after each test, and a
+    level the shell set is not seen by the tests."""
+    import cv2
+
+    for variable in ("OPENCV_LOG_LEVEL", "OPENCV_FFMPEG_LOGLEVEL"):
+        monkeypatch.delenv(variable, raising=False)
+    level = cv2.utils.logging.getLogLevel()
+    yield
+    cv2.utils.logging.setLogLevel(level)
+
+
 @pytest.fixture
 def ros_domain(monkeypatch):
     """A DDS domain of this test run's own, discovery on loopback only; child processes inherit it."""

@@ -296,6 +296,8 @@ def test_a_camera_whose_clock_reads_zero_publishes_nothing_and_says_why(ros_doma
     rclpy.init(args=args)
     try:
         node = CameraNode() if node_kind == "camera_node" else SimCameraNode()
+        if node_kind == "sim_camera_node":
+            node.listened = lambda: True  # as if the bundle and fusion nodes listened: it would play now
         tick = node.grab if node_kind == "camera_node" else node.publish_frame
         for _ in range(3):
             tick()
@@ -306,3 +308,13 @@ def test_a_camera_whose_clock_reads_zero_publishes_nothing_and_says_why(ros_doma
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+def test_a_log_level_the_user_set_for_opencv_is_kept(camera_node_of, monkeypatch):
+    """quiet_opencv lowers OpenCV's messages to errors unless OPENCV_LOG_LEVEL says otherwise (review)."""
+    import cv2
+
+    monkeypatch.setenv("OPENCV_LOG_LEVEL", "INFO")
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_INFO)
+    camera_node_of(MISSING_DEVICE_INDEX)
+    assert cv2.utils.logging.getLogLevel() == cv2.utils.logging.LOG_LEVEL_INFO

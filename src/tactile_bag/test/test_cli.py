@@ -10,10 +10,12 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 import torch
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
 
@@ -22,6 +24,7 @@ from tactile_bag.cli import main
 from tactile_bag.play import play
 from tactile_bag.record import record
 from tactile_bag.topics import IMAGE_TYPE
+from tactile_conversions import stop_signals
 from tactile_conversions.stop_signals import init_ros
 from tactile_fusion.artifacts import STATE_DICT
 
@@ -134,29 +137,45 @@ def test_play_itself_refuses_a_rate_below_the_slowest(sim_bag):
         play(sim_bag, rate=1e-300)
 
 
-@pytest.mark.parametrize(("offsets_s", "played"), [((0.0,), (2, 3, 4)), ((0.0, 0.0), (4, 6)),
-                                                    ((0.0, 0.1, 0.2), (10, 11, 12))])
-def test_a_looped_bag_starts_over_one_period_after_its_last_message(tmp_path, offsets_s, played):
+@pytest.mark.parametrize(("offsets_s", "passes"), [((0.0,), 3), ((0.0, 0.0), 2), ((0.0, 0.1, 0.2), 3)])
+def test_a_looped_bag_starts_over_one_period_after_its_last_message(tmp_path, monkeypatch, offsets_s, passes):
     """A pass went straight on into the next: one message was published 160000 times in 3 s, and so were two received
     at one time (reviews), and a bag's first message followed its last at once. Now a pass lasts one period of its
-    topics more than its messages span (no period: a second). In 2.5 s a message alone goes out at 0, 1 and 2 s, a
-    pair at one time twice as often; in 1.05 s three 0.1 s apart go out at 0, 0.1, ..., 1.0 s (back to back before:
-    16 times)."""
+    topics more than its messages span (no period: a second). The real publisher's calls are timed, and ROS is shut
+    down after `passes` passes: lower bounds on the gaps, which a loaded machine only lengthens."""
     image = serialize_message(Image(height=1, width=1, encoding="mono8", step=1, data=[7]))
     with BagWriter(tmp_path / "bag") as bag:
         for offset_s in offsets_s:
             bag.write("/tactile/cam0/image", IMAGE_TYPE, 1_700_000_000 * 10**9 + round(offset_s * 1e9), image)
+    published_s = []
+    real_publish = Publisher.publish
+
+    def timed_publish(publisher, message):
+        real_publish(publisher, message)
+        if publisher.topic_name != "/tactile/cam0/image":  # the node's own publishers (/rosout, parameter events)
+            return
+        published_s.append(time.monotonic())
+        if len(published_s) == passes * len(offsets_s):
+            rclpy.shutdown()  # as a SIGTERM does: the replay ends at its next wait
+
+    monkeypatch.setattr(Publisher, "publish", timed_publish)
+    monkeypatch.setattr(stop_signals, "_started", threading.Event())  # init_ros's flags, fresh for this test
+    monkeypatch.setattr(stop_signals, "_interrupted", threading.Event())
     python_handler = signal.getsignal(signal.SIGINT)
-    init_ros()  # as the command starts ROS: a shutdown during a publish is a stop (stop_signals)
-    stop = threading.Timer(1.05 if len(offsets_s) == 3 else 2.5, rclpy.shutdown)
+    init_ros()  # as the command starts ROS: a shutdown during a publish is a stop
     try:
-        stop.start()
         counts = play(tmp_path / "bag", loop=True, wait_subscribers_s=0.0)
     finally:
-        stop.cancel()
         rclpy.try_shutdown()
         signal.signal(signal.SIGINT, python_handler)
-    assert counts["/tactile/cam0/image"] in played, counts
+    assert counts["/tactile/cam0/image"] == passes * len(offsets_s), (counts, published_s)
+    gaps = np.diff(published_s)
+    per_pass = len(offsets_s)
+    pass_gaps = gaps[per_pass - 1::per_pass]  # from a pass's last message to the next pass's first
+    if offsets_s[-1] > offsets_s[0]:  # a period of 0.1 s: the next pass 0.1 s after the last message
+        assert (pass_gaps >= 0.095).all() and (np.delete(gaps, np.s_[per_pass - 1::per_pass]) >= 0.095).all(), gaps
+    else:  # no period: a second between passes
+        assert (pass_gaps >= 0.99).all(), gaps
 
 
 def test_play_stops_on_sigterm_during_a_long_gap(tmp_path):

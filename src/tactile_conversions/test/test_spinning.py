@@ -24,6 +24,9 @@ def test_spin_until_says_whether_the_condition_came_true_in_time(node):
 
 @pytest.mark.parametrize("timeout_s", [math.nan, math.inf, -1.0])
 def test_a_wait_without_a_finite_timeout_is_refused(node, timeout_s):
-    """A NaN deadline never came: the wait never ended (review)."""
+    """A NaN deadline never came: the wait never ended (review). The condition gives up after 20 calls, so that a
+    regression fails here instead of hanging the run."""
+    calls = []
     with pytest.raises(ValueError, match="spin_until: timeout_s must be a finite number >= 0"):
-        spin_until(node, lambda: False, timeout_s)
+        spin_until(node, lambda: calls.append(1) or len(calls) > 20, timeout_s)
+    assert calls == []

@@ -19,6 +19,7 @@ def test_before_ros_is_started_an_error_is_no_stop(monkeypatch):
     """rclpy's context is not valid before init_ros either: every error passed for a stop, and a block ended by a real
     failure ended quietly as if stopped (review)."""
     monkeypatch.setattr(stop_signals, "_started", threading.Event())  # as in a process that has not started ROS
+    rclpy.try_shutdown()  # no context left over from another test
     assert not rclpy.ok() and not stopped_by_signal(ValueError("a real bug"))
     with pytest.raises(ValueError, match="a real bug"), until_stop_signal():
         raise ValueError("a real bug")
@@ -50,7 +51,9 @@ def test_a_block_until_a_stop_signal_ends_quietly_on_the_stop_only(ros_started_b
 
 
 @pytest.fixture
-def ros_started_by_init_ros():
+def ros_started_by_init_ros(monkeypatch):
+    monkeypatch.setattr(stop_signals, "_started", threading.Event())  # init_ros's flags, fresh for each test
+    monkeypatch.setattr(stop_signals, "_interrupted", threading.Event())
     python_handler = signal.getsignal(signal.SIGINT)
     init_ros()
     yield

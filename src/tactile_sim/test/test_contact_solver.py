@@ -134,7 +134,7 @@ def test_a_height_map_press_is_reported_and_refused_beside_the_surface_as_a_sphe
     width_mm = sensor.grid.width_m * 1e3
     grazing = press_report(sensor, Contact((width_mm + 2.0) * 1e-3, 0.025, 1e-3, sphere_map), model)
     assert grazing["total_force_n"][2] > 0  # 2 mm beside the edge, within the 2.24 mm Hertz's contact reaches
-    with pytest.raises(ValueError, match=r"is 4 mm off the 49 x 51 mm surface, beyond the 3.\d+ mm its contact"):
+    with pytest.raises(ValueError, match=r"is 4 mm off the 49 x 51 mm surface, beyond the 3\.\d+ mm its contact"):
         press_report(sensor, Contact((width_mm + 4.0) * 1e-3, 0.025, 1e-3, sphere_map), model)
 
 
