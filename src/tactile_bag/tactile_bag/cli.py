@@ -100,15 +100,15 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(args.model, args.backend)
     # `is not None`: an empty --truth-topic is refused (absolute_topic), not taken for the default (review)
-    truth_topic = (absolute_topic(args.truth_topic, GROUND_TRUTH_TOPIC) if args.truth_topic is not None
-                   else GROUND_TRUTH_TOPIC)
+    named_truth = absolute_topic(args.truth_topic, GROUND_TRUTH_TOPIC) if args.truth_topic is not None else None
+    truth_topic = named_truth or GROUND_TRUTH_TOPIC
     check_fits(predictor, sensor)  # before the warning, which would name the cameras of a model of others
     changes = sensor_changes(predictor.made_for, sensor)
     warning = sensor_changes_warning(changes, sensor)
     if warning:
         print(f"tactile-bag eval: warning: {warning}", file=sys.stderr)
     result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
-                          truth_topic if args.truth_topic is not None else None, contact_level_n=args.contact_level)
+                          named_truth, contact_level_n=args.contact_level)
     summary = {**result.summary(), "sensor_changes": changes}
     if summary["other_image_topics"]:
         print(f"tactile-bag eval: the bag also holds images on {', '.join(summary['other_image_topics'])}, not "

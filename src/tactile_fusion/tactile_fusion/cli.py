@@ -139,32 +139,31 @@ def _settings(args, cameras: int, **train_overrides) -> tuple[ModelConfig, Train
 OPTION_OF_FIELD = {"max_epochs": "--epochs"}
 
 
+def _option_of(field: str, args) -> str | None:
+    """The command-line option that sets TrainConfig or ModelConfig `field`: where the parsed arguments hold one of its
+    name (--batch-size), or OPTION_OF_FIELD's; None for a field without one (image_size, from the sensor
+    description)."""
+    if field in OPTION_OF_FIELD:
+        return OPTION_OF_FIELD[field]
+    return "--" + field.replace("_", "-") if field in vars(args) and field != "image_size" else None
+
+
 def _named_by_option(message: str, args) -> str:
     """A TrainConfig or ModelConfig refusal naming the command-line option, not the field ("TrainConfig.max_epochs
-    must be ..." for --epochs 0; walkthrough). A field has an option where the parsed arguments hold one of its name;
-    image_size, set from the sensor description, has none."""
-    options = {name for name in vars(args) if name != "image_size"}
-
-    def option(match: re.Match) -> str:
-        field = match[1]
-        if field in OPTION_OF_FIELD:
-            return OPTION_OF_FIELD[field]
-        return "--" + field.replace("_", "-") if field in options else match[0]
-    return re.sub(r"(?:TrainConfig\.|ModelConfig: )(\w+)", option, message)
+    must be ..." for --epochs 0; walkthrough)."""
+    return re.sub(r"(?:TrainConfig\.|ModelConfig: )(\w+)", lambda match: _option_of(match[1], args) or match[0],
+                  message)
 
 
 def _checkpoint_settings_by_option(message: str, args) -> str:
     """A checkpoint's refusal of other training settings ("... other training settings: max_epochs 3 (now 4); ...")
     naming the command-line options (--epochs), as _named_by_option does for a settings error (review)."""
     head, sep, tail = message.partition("other training settings: ")
+    if not sep:
+        return message
     settings, sep2, rest = tail.partition("; ")
-
-    def option(match: re.Match) -> str:
-        field = match[1]
-        if field in OPTION_OF_FIELD:
-            return OPTION_OF_FIELD[field]
-        return "--" + field.replace("_", "-") if field in vars(args) else field
-    return head + sep + re.sub(r"(?:^|(?<=, ))(\w+)(?= )", option, settings) + sep2 + rest if sep else message
+    return head + sep + re.sub(r"(?:^|(?<=, ))(\w+)(?= )", lambda match: _option_of(match[1], args) or match[1],
+                               settings) + sep2 + rest
 
 
 def _fractions(text: str) -> list[float]:

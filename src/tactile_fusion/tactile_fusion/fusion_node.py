@@ -140,7 +140,7 @@ class FusionNode(Node):
                                                     "skipped")])
             return  # neither estimated nor counted towards the reference frames
         self.estimate(bundle)
-        if self.load.add(time.perf_counter() - started, time_to_seconds(bundle.header.stamp)):
+        if self.load.add(time.perf_counter() - started, time_to_seconds(stamp)):
             self.get_logger().warning(
                 f"falling behind the cameras: a bundle takes {1e3 * self.load.mean_s:.1f} ms on average, they come "
                 f"every {1e3 * self.load.period_s:.1f} ms, so estimates arrive later and later; a faster backend "

@@ -612,7 +612,8 @@ def load_scene(path_or_name: str | os.PathLike, sensor: SensorDescription | None
     path = Path(path_or_name)
     # A plain name may be an installed scene; a path (with a directory, even "./") names a file only: Path("./x")
     # is Path("x"), so "./demo.yaml" missing here read the installed demo without a word (review).
-    plain_name = "/" not in os.fspath(path_or_name) and os.sep not in os.fspath(path_or_name)
+    given = os.fspath(path_or_name)
+    plain_name = "/" not in given and os.sep not in given
     if not path.is_file() and path.suffix in ("", ".yaml") and plain_name:
         try:
             path = scenes_directory() / f"{path.stem}.yaml"
