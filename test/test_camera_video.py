@@ -1,5 +1,6 @@
 """camera_node on real video files through OpenCV, and on sources that cannot be used: real processes, Fast DDS."""
 
+import socket
 import time
 
 import cv2
@@ -208,6 +209,28 @@ def test_a_source_that_appears_later_is_opened_by_the_monotonic_clock_not_the_no
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+def test_a_stream_that_never_answers_does_not_hold_up_the_nodes_stop(ros_domain, tmp_path):
+    """FFmpeg's open of a stream whose server accepts and never answers blocks for 30 s. Made in the timer callback,
+    it held the executor, and a Ctrl-C waited for it: `ros2 launch` would have killed the node (review)."""
+    camera = load_sensor().cameras[0]
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        server.settimeout(60.0)
+        url = f"http://127.0.0.1:{server.getsockname()[1]}/stream.mjpg"
+        process = start_node(camera_spec("stream_camera", camera.camera_id, url), tmp_path)
+        try:
+            connection, _ = server.accept()  # the node is inside OpenCV's open, waiting for an answer
+            with connection:
+                started = time.monotonic()
+                codes = stop_nodes([process])
+                stopped_after_s = time.monotonic() - started
+        finally:
+            stop_nodes([process])
+    log = (tmp_path / "stream_camera.log").read_text()
+    assert codes == [0], log
+    assert stopped_after_s < 5.0, log  # ros2 launch sends SIGTERM 5 s after its SIGINT
+    assert f"camera source '{url}' still blocks OpenCV after 1 s; leaving it to the end of the process" in log, log
 
 
 @pytest.fixture

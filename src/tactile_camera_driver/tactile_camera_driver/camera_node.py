@@ -26,6 +26,9 @@ Stamps (not tried on camera hardware): a device is opened with a buffer of one f
 OpenCV's V4L2 backend keeps 4 by default, so a node that fell behind would get frames up to 4 periods older than
 their stamps; backends without the property ignore it), and a frame is stamped as soon as grab() returns it,
 before it is decoded, not before read() waits for it.
+
+The OpenCV calls run in a thread of their own (`capture_thread.CaptureThread`), so that a source that blocks (a
+stream that does not answer holds FFmpeg's open for 30 s) does not hold up a Ctrl-C or `ros2 launch`'s SIGINT.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
+from tactile_camera_driver.capture_thread import CaptureThread
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.node_main import run_node
 from tactile_conversions.parameters import (
@@ -59,6 +63,9 @@ from tactile_description.value_checks import is_whole_number
 
 #: OpenCV takes a device index as a C int: 2**32 ended the node in cv2.error at its first frame (found in review).
 MAX_DEVICE_INDEX = 2**31 - 1
+
+#: How long a stopping node waits for an OpenCV call still running before it leaves the source to the process's end.
+CLOSE_TIMEOUT_S = 1.0
 
 #: How far a video file's own frame rate may lie from rate_hz before the node says it plays at another speed.
 FILE_RATE_TOLERANCE = 0.01
@@ -115,7 +122,9 @@ def open_source(source: int | str, capture_size: tuple[int, int], frame_rate_hz:
 class CameraNode(Node):
     def __init__(self) -> None:
         super().__init__("tactile_camera")
-        self.capture: cv2.VideoCapture | None = None  # first: rclpy destroys the node even if __init__ fails
+        # first: rclpy destroys the node even if __init__ fails
+        self.capture: cv2.VideoCapture | None = None
+        self.capture_thread: CaptureThread | None = None
         quiet_opencv()
         self.camera_id = text(self, "camera_id", "cam0")
         self.source = self.declare_source()
@@ -131,7 +140,8 @@ class CameraNode(Node):
         self.next_open_s = 0.0
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
-        self.timer = steady_timer(self, 1.0 / self.frame_rate_hz, self.grab)
+        self.capture_thread = CaptureThread(self.grab, f"{self.camera_id} capture")
+        self.timer = steady_timer(self, 1.0 / self.frame_rate_hz, self.capture_thread.tick)
         log_sensor_description(self, sensor)
 
     def declare_source(self) -> int | str:
@@ -149,7 +159,11 @@ class CameraNode(Node):
                              f"{MAX_DEVICE_INDEX}), a device path or a video file, got {value!r}")
 
     def destroy_node(self) -> None:
-        if self.capture is not None:
+        idle = self.capture_thread is None or self.capture_thread.close(CLOSE_TIMEOUT_S)
+        if not idle:  # releasing a capture that another thread reads from is not safe
+            self.get_logger().warning(f"{self.camera_id}: camera source {self.source!r} still blocks OpenCV after "
+                                      f"{CLOSE_TIMEOUT_S:g} s; leaving it to the end of the process")
+        elif self.capture is not None:
             self.capture.release()
         super().destroy_node()
 
@@ -197,6 +211,7 @@ class CameraNode(Node):
                 f"{self.camera.capture_size[0]} x {self.camera.capture_size[1]} px, {self.frame_rate_hz:g} fps)")
 
     def grab(self) -> None:
+        """One frame tick, in the capture thread: open the source if need be, read a frame, publish it."""
         if not clock_running(self) or not self.ensure_open():
             return
         frame, stamp = self.read_frame()
