@@ -6,10 +6,9 @@
 
 The nodes and their parameters come from tactile_bringup.graph, the same description `tactile-demo` runs
 where no launch system is installed. RViz gets the configuration of the sensor description it runs
-(tactile_bringup.rviz_config: its frame and its bins), written to a temporary file.
+(tactile_bringup.rviz_config: its frame and its bins), written to $ROS_HOME/tactile_bringup/ (~/.ros/tactile_bringup/).
 """
 
-import tempfile
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
@@ -44,7 +43,7 @@ def graph_nodes(context):
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, parameters=[s.parameters],
                   output="screen") for s in specs]
     if IfCondition(value["rviz"]).evaluate(context):
-        config = write_rviz_config(sensor, Path(tempfile.mkdtemp(prefix="tactile_rviz_")) / "tactile.rviz")
+        config = write_rviz_config(sensor)
         nodes.append(Node(package="rviz2", executable="rviz2", arguments=["-d", str(config)]))
     return nodes
 

@@ -1,14 +1,16 @@
 """The RViz configuration of a sensor: its bin grid, the force markers and the total force, in its frame.
 
-`sensor.launch.py rviz:=true` writes it for the sensor description it runs, so that a sensor with another
-`frame_id` or other bins is shown as it is (with one fixed configuration, RViz showed nothing for a sensor in another
-frame). `config/tactile.rviz` is this configuration for the reference sensor, to open without the launch system
-(`rviz2 -d config/tactile.rviz`); a test keeps the two equal.
+`sensor.launch.py rviz:=true` writes it for the sensor description it runs (`write_rviz_config` without a path), so
+that a sensor with another `frame_id` or other bins is shown as it is (with one fixed configuration, RViz showed
+nothing for a sensor in another frame). `config/tactile.rviz` is this configuration for the reference sensor, to open
+without the launch system (`rviz2 -d config/tactile.rviz`); a test keeps the two equal.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
 from pathlib import Path
 
 import yaml
@@ -71,8 +73,21 @@ def rviz_config(sensor: SensorDescription) -> dict:
                 "Views": {"Current": view}}}
 
 
-def write_rviz_config(sensor: SensorDescription, path: str | Path) -> Path:
-    """Write `rviz_config(sensor)` to `path` (a .rviz file); returns the path."""
+def write_rviz_config(sensor: SensorDescription, path: str | Path | None = None) -> Path:
+    """Write `rviz_config(sensor)` to `path` (a .rviz file); returns the path.
+
+    Without a path, to the file that sensor.launch.py gives RViz: `$ROS_HOME/tactile_bringup/rviz_<digest>.rviz`
+    (ROS_HOME defaults to ~/.ros, where ROS keeps its logs), named by a digest of the configuration, so that every
+    launch of a sensor description writes the same file again and two launches of different sensors do not share one.
+    A temporary directory per launch (before 2026-11-27) left one behind at every launch. The file is replaced in one
+    step (written beside, then renamed), so that an RViz starting meanwhile never reads half of it."""
+    text = yaml.safe_dump(rviz_config(sensor), sort_keys=False)
+    if path is None:
+        folder = Path(os.environ.get("ROS_HOME") or Path.home() / ".ros").expanduser() / "tactile_bringup"
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"rviz_{hashlib.sha256(text.encode()).hexdigest()[:16]}.rviz"
     path = Path(path)
-    path.write_text(yaml.safe_dump(rviz_config(sensor), sort_keys=False))
+    partial = path.with_name(f".{path.name}.{os.getpid()}")
+    partial.write_text(text)
+    os.replace(partial, path)
     return path

@@ -102,7 +102,7 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     # RViz gets the configuration written for the sensor description the graph runs, not a fixed file.
     rviz = next(node for node in ast.walk(tree) if isinstance(node, ast.Call)
                 and getattr(node.func, "id", None) == "write_rviz_config")
-    assert getattr(rviz.args[0], "id", None) == "sensor"
+    assert getattr(rviz.args[0], "id", None) == "sensor" and len(rviz.args) == 1 and not rviz.keywords  # ROS_HOME
     assert 'load_sensor(value["sensor_config"])' in source and '"config" / "tactile.rviz"' not in source
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
@@ -149,6 +149,19 @@ def test_rviz_shows_the_sensor_in_its_own_frame(sensor, tmp_path):
     written = yaml.safe_load(write_rviz_config(pad, tmp_path / "pad.rviz").read_text())
     assert written["Visualization Manager"]["Global Options"]["Fixed Frame"] == "left_finger_pad"
     assert written == rviz_config(pad)
+
+
+def test_each_launch_of_a_sensor_writes_its_rviz_config_to_one_file_under_ros_home(sensor, tmp_path, monkeypatch):
+    """sensor.launch.py rviz:=true made a temporary directory at every launch and left it behind (review)."""
+    import yaml
+
+    monkeypatch.setenv("ROS_HOME", str(tmp_path))
+    first = write_rviz_config(sensor)
+    assert write_rviz_config(sensor) == first and first.parent == tmp_path / "tactile_bringup"
+    pad = replace(sensor, frame_id="left_finger_pad")
+    assert yaml.safe_load(write_rviz_config(pad).read_text()) == rviz_config(pad)
+    assert yaml.safe_load(first.read_text()) == rviz_config(sensor)
+    assert len(list(first.parent.iterdir())) == 2  # one file per sensor, nothing left beside them
 
 
 @pytest.mark.parametrize("sensor_file", ["sensor.yaml", "skin_3x3.yaml"])
