@@ -104,7 +104,14 @@ class BundleNode(Node):
         self.log_drops()
 
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        """Arrival time, by which a camera is found silent: the simulated clock's with use_sim_time (a bag played
+        slower, or paused, is judged in its own time), the steady clock's otherwise. On the system clock an NTP step
+        longer than camera_timeout_s counted every camera silent once, and a step back kept a silent one live for its
+        length (review)."""
+        clock = self.get_clock()
+        if clock.ros_time_is_active:
+            return clock.now().nanoseconds * 1e-9
+        return time.monotonic()
 
     def on_image(self, camera_id: str, msg: Image) -> None:
         stamp_s = time_to_seconds(msg.header.stamp)

@@ -2,11 +2,13 @@
 back through a subscription, its log through stderr. The parameters and the drop reports: test/test_camera_nodes.py."""
 
 import os
+import time
 
 import numpy as np
 import pytest
 import rclpy
 from builtin_interfaces.msg import Time
+from rosgraph_msgs.msg import Clock
 
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time, time_to_seconds
@@ -158,3 +160,18 @@ def test_the_camera_check_runs_at_half_the_timeout_but_not_faster_than_a_hundred
     """camera_timeout_s 0.001 made a 2 kHz check that held a third of a core (review)."""
     node, _ = bundler("-p", f"camera_timeout_s:={timeout_s}")
     assert sorted(t.timer_period_ns for t in node.timers) == sorted([round(check_s * 1e9), 1_000_000_000])
+
+
+def test_a_cameras_silence_is_timed_on_the_steady_clock(bundler):
+    """On the system clock an NTP step longer than camera_timeout_s counted every camera silent once (review)."""
+    node, _ = bundler()
+    before = time.monotonic()
+    assert before <= node.now_s() <= time.monotonic()
+
+
+def test_with_use_sim_time_a_cameras_silence_is_timed_on_the_simulated_clock(bundler):
+    """A bag played slower than it was recorded, or paused, is judged in its own time."""
+    node, _ = bundler("-p", "use_sim_time:=true")
+    clock = node.create_publisher(Clock, "/clock", 10)
+    at_1000_s = Clock(clock=Time(sec=1000))
+    assert spin_until(node, lambda: clock.publish(at_1000_s) or node.now_s() == pytest.approx(1000.0), 10.0)
