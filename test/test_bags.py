@@ -29,9 +29,12 @@ pytestmark = pytest.mark.system
 RECORD_S = 4.0
 
 
+def tactile_bag_executable() -> Path:
+    return Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"
+
+
 def tactile_bag(*args: str, timeout_s: float = 30.0) -> subprocess.CompletedProcess:
-    executable = Path(get_package_prefix("tactile_bag")) / "lib" / "tactile_bag" / "tactile-bag"
-    return subprocess.run([str(executable), *args], capture_output=True, text=True, timeout=timeout_s)
+    return subprocess.run([str(tactile_bag_executable()), *args], capture_output=True, text=True, timeout=timeout_s)
 
 
 def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, lossless_image_qos, tmp_path):
@@ -110,15 +113,18 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, loss
     assert summary["matched_with_ground_truth"] >= summary["estimates"] - 2  # truth may lag at the bag's ends
 
 
-#: A publisher outside the stack, best effort (sensor-data QoS), of a String every 20 ms until it is stopped.
-BEST_EFFORT_PUBLISHER = """
+#: A publisher outside the stack of a String every 20 ms until it is stopped: on topic sys.argv[1], its QoS
+#: sys.argv[2] ("best_effort": sensor-data QoS; "reliable"), its data the QoS.
+FOREIGN_PUBLISHER = """
+import sys
 import rclpy
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from std_msgs.msg import String
 rclpy.init()
-node = rclpy.create_node("foreign_best_effort")
-publisher = node.create_publisher(String, "/foreign_best_effort", qos_profile_sensor_data)
-node.create_timer(0.02, lambda: publisher.publish(String(data="x")))
+node = rclpy.create_node("foreign_" + sys.argv[2])
+qos = qos_profile_sensor_data if sys.argv[2] == "best_effort" else QoSProfile(depth=10)
+publisher = node.create_publisher(String, sys.argv[1], qos)
+node.create_timer(0.02, lambda: publisher.publish(String(data=sys.argv[2])))
 try:
     rclpy.spin(node)
 except KeyboardInterrupt:
@@ -126,25 +132,59 @@ except KeyboardInterrupt:
 """
 
 
+def foreign_publisher(topic: str, reliability: str) -> subprocess.Popen:
+    import sys
+
+    return subprocess.Popen([sys.executable, "-c", FOREIGN_PUBLISHER, topic, reliability])
+
+
+def stop_publishers(*publishers) -> None:
+    import signal
+
+    for publisher in publishers:
+        publisher.send_signal(signal.SIGINT)
+        publisher.wait(timeout=20)
+
+
 def test_a_best_effort_topic_outside_the_stack_is_recorded(ros_probe, tmp_path):
     """Its reliable subscription matched no best-effort publisher: 0 messages, and the tool asked whether the graph
     was running (code review)."""
-    import signal
-    import sys
-
-    publisher = subprocess.Popen([sys.executable, "-c", BEST_EFFORT_PUBLISHER])
+    publisher = foreign_publisher("/foreign_best_effort", "best_effort")
     try:
         assert spin_until(ros_probe, lambda: ros_probe.count_publishers("/foreign_best_effort"), 20.0)
         # its own discovery of the publisher takes seconds on a loaded machine (2 s, the default, was too short once)
         recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "1", "--topics", "/foreign_best_effort",
                                "--discovery-timeout", "20", timeout_s=60.0)
     finally:
-        publisher.send_signal(signal.SIGINT)
-        publisher.wait(timeout=20)
+        stop_publishers(publisher)
     assert recorded.returncode == 0, recorded.stderr
     with BagReader(tmp_path / "bag") as bag:
         assert bag.topics == {"/foreign_best_effort": "std_msgs/msg/String"}
         assert sum(1 for _ in bag.messages(["/foreign_best_effort"])) >= 10
+
+
+def test_a_best_effort_publisher_that_appears_while_recording_is_recorded_too(ros_probe, tmp_path):
+    """The topic is subscribed reliably for the reliable publisher seen at the start; a best-effort one that came
+    later matched nothing, and its messages were lost without a word (review)."""
+    from std_msgs.msg import String
+
+    publishers = [foreign_publisher("/foreign_mixed", "reliable")]
+    try:
+        assert spin_until(ros_probe, lambda: ros_probe.count_publishers("/foreign_mixed"), 20.0)
+        recorder = subprocess.Popen([str(tactile_bag_executable()), "record", str(tmp_path / "bag"), "--duration",
+                                     "10", "--topics", "/foreign_mixed", "--discovery-timeout", "20"],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert spin_until(ros_probe, lambda: ros_probe.count_subscribers("/foreign_mixed"), 20.0)  # it records
+        publishers.append(foreign_publisher("/foreign_mixed", "best_effort"))
+        _, err = recorder.communicate(timeout=60)
+    finally:
+        stop_publishers(*publishers)
+    assert recorder.returncode == 0, err
+    assert ("tactile-bag record: /foreign_mixed: a best-effort publisher appeared while recording; the topic was "
+            "subscribed anew, best effort") in err
+    with BagReader(tmp_path / "bag") as bag:
+        data = [deserialize_message(raw, String).data for *_, raw in bag.messages(["/foreign_mixed"])]
+    assert {"reliable", "best_effort"} <= set(data), data[-20:]
 
 
 def test_record_names_the_image_topics_of_other_cameras_when_its_own_are_silent(ros_probe, tmp_path):

@@ -67,6 +67,10 @@ def cmd_record(args) -> int:
     if silent_images and recording.other_images:
         print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: the "
               f"cameras of another sensor description than {sensor.source}? (--sensor FILE)", file=sys.stderr)
+    for topic in recording.best_effort_topics:
+        print(f"tactile-bag record: {topic}: a best-effort publisher appeared while recording; the topic was "
+              "subscribed anew, best effort, to take its messages too (those sent while the new subscription was "
+              "matched are not in the bag)", file=sys.stderr)
     if not total and recording.stopped:  # not "no message within --wait": that had not run out (found in review)
         print("tactile-bag record: stopped before any message arrived", file=sys.stderr)
     elif not total:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -26,16 +27,45 @@ from tactile_description.value_checks import is_number
 
 
 class Recorder(Node):
-    """Subscribes every topic raw and writes each message into `bag` as it arrives."""
+    """Subscribes every topic raw and writes each message into `bag` as it arrives.
+
+    A best-effort publisher that appears after a topic was subscribed reliably (recording_qos chose reliable delivery
+    because every publisher seen then offered it) matches no reliable subscription: its messages were lost without a
+    word (review). Its incompatible-QoS event marks the topic, and `take_best_effort_publishers` subscribes it anew,
+    best effort, which matches every publisher; the topic is listed in `best_effort_topics`. Messages sent while the
+    new subscription is matched (milliseconds on one machine) are not recorded. Reliability is the only policy in
+    which a publisher can be incompatible with the recording's subscriptions: they ask for volatile durability, no
+    deadline and automatic liveliness, which every publisher offers.
+    """
 
     def __init__(self, bag: BagWriter, topic_types: dict[str, str], qos: dict[str, QoSProfile]):
         super().__init__("tactile_bag_recorder")
         self.bag = bag
+        self.topic_types = topic_types
         self.first_arrival_s: float | None = None  # time.monotonic() of the first message
+        self.best_effort_topics: list[str] = []      # subscribed anew, best effort (above)
+        self._reliability_refused: list[str] = []    # topics marked by their incompatible-QoS event
+        self._subscription_of = {}
         for topic, msgtype in topic_types.items():
             bag.add_topic(topic, msgtype)
-            self.create_subscription(message_class(msgtype), topic,
-                                     lambda raw, t=topic, m=msgtype: self.on_message(t, m, raw), qos[topic], raw=True)
+            self._subscribe(topic, qos[topic])
+
+    def _subscribe(self, topic: str, qos: QoSProfile) -> None:
+        msgtype = self.topic_types[topic]
+        events = SubscriptionEventCallbacks(incompatible_qos=lambda _, t=topic: self._reliability_refused.append(t))
+        self._subscription_of[topic] = self.create_subscription(
+            message_class(msgtype), topic, lambda raw, t=topic, m=msgtype: self.on_message(t, m, raw), qos, raw=True,
+            event_callbacks=events)
+
+    def take_best_effort_publishers(self) -> None:
+        """Subscribe anew, best effort, each topic whose reliable subscription a best-effort publisher could not
+        match. Called between spins: not from the event's callback, whose subscription it destroys."""
+        for topic in dict.fromkeys(self._reliability_refused):
+            if topic not in self.best_effort_topics:
+                self.destroy_subscription(self._subscription_of[topic])
+                self._subscribe(topic, QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT))
+                self.best_effort_topics.append(topic)
+        self._reliability_refused.clear()
 
     def on_message(self, topic: str, msgtype: str, raw: bytes) -> None:
         if self.first_arrival_s is None:
@@ -71,7 +101,7 @@ def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]
     delivery (for an image topic: sensor-data QoS, best effort), else best effort with a queue of RELIABLE_DEPTH: a
     reliable subscription matches no best-effort publisher (one outside the stack was recorded with 0 messages, and
     the tool asked whether the graph was running; found in review). A best-effort publisher that appears only after
-    reliable ones were seen is not matched."""
+    reliable ones were seen is taken by the Recorder, which then subscribes the topic anew, best effort."""
     def reliable(topic: str) -> bool:
         offered = node.get_publishers_info_by_topic(topic)
         return bool(offered) and all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in offered)
@@ -86,6 +116,7 @@ class Recording:
     counts: dict[str, int]  # messages per topic
     stopped: bool           # by SIGINT or SIGTERM, before its duration (or its wait for a first message) ran out
     other_images: tuple[str, ...] = ()  # image topics the graph showed meanwhile that were not recorded
+    best_effort_topics: tuple[str, ...] = ()  # subscribed anew, best effort, for a publisher that came later (Recorder)
 
 
 def other_image_topics(node: Node, recorded: Sequence[str]) -> tuple[str, ...]:
@@ -135,9 +166,10 @@ def record(out: str | Path, topics: Sequence[str], known_types: dict[str, str], 
                     if left_s <= 0:
                         break
                     rclpy.spin_once(recorder, timeout_sec=min(0.1, left_s))
+                    recorder.take_best_effort_publishers()
                 other_images = other_image_topics(recorder, topics)
             finally:
                 recorder.destroy_node()
         with stop_signals_ignored():  # an impatient second Ctrl-C would leave the bag without its index: unreadable
             bag.close()
-        return Recording(dict(bag.counts), stop.signalled, other_images)
+        return Recording(dict(bag.counts), stop.signalled, other_images, tuple(recorder.best_effort_topics))
