@@ -22,7 +22,7 @@ import rclpy
 from tactile_bag.evaluate import MATCH_TOLERANCE_S, REFERENCE_BUNDLES, SOURCES, check_fits, evaluate_bag
 from tactile_bag.play import MIN_RATE, play
 from tactile_bag.record import record
-from tactile_bag.topics import IMAGE_TYPE, absolute_topic, default_record_topics, stack_topics
+from tactile_bag.topics import IMAGE_TYPE, absolute_topic, default_record_topics, other_sensor_hint, stack_topics
 from tactile_conversions.stop_signals import init_ros, stopped_by_signal
 from tactile_conversions.topics import GROUND_TRUTH_TOPIC
 from tactile_description import load_sensor
@@ -65,8 +65,8 @@ def cmd_record(args) -> int:
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
     silent_images = [t for t in silent if stack_topics(sensor).get(t) == IMAGE_TYPE]
     if silent_images and recording.other_images:
-        print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: the "
-              f"cameras of another sensor description than {sensor.source}? (--sensor FILE)", file=sys.stderr)
+        print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: "
+              f"{other_sensor_hint(sensor)}", file=sys.stderr)
     for topic in recording.best_effort_topics:
         print(f"tactile-bag record: {topic}: a best-effort publisher appeared while recording; the topic was "
               "subscribed anew, best effort, to take its messages too (those sent while the new subscription was "
@@ -116,8 +116,7 @@ def cmd_eval(args) -> int:
     summary = {**result.summary(), "sensor_changes": changes}
     if summary["other_image_topics"]:
         print(f"tactile-bag eval: the bag also holds images on {', '.join(summary['other_image_topics'])}, not "
-              f"evaluated: the cameras of another sensor description than {sensor.source}? (--sensor FILE)",
-              file=sys.stderr)
+              f"evaluated: {other_sensor_hint(sensor)}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
         return 0

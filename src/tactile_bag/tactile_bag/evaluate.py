@@ -32,11 +32,11 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
 from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
-from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
+from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE, camera_topics
 from tactile_conversions.forces import forces_from_msg
 from tactile_conversions.images import frame_from_images, is_malformed_bundle
 from tactile_conversions.ros_time import is_ros_stamp, is_ros_time, time_to_seconds
-from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S, camera_topic
+from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, LiveEstimation
@@ -140,7 +140,7 @@ def choose_source(bag: BagReader, sensor: SensorDescription, source: str = "auto
     """'images' when the bag has every camera's images (or asked), 'bundles' for recorded ImageBundles."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
-    image_topics = [camera_topic(c) for c in sensor.camera_ids]
+    image_topics = list(camera_topics(sensor))
     for topic in [*image_topics, BUNDLE_TOPIC]:
         expected = BUNDLE_TYPE if topic == BUNDLE_TOPIC else IMAGE_TYPE
         if topic in bag.topics and bag.topics[topic] != expected:
@@ -183,7 +183,7 @@ def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader
     stamp no bundle can carry dropped)."""
     sync: ApproximateTimeSync[Image] = ApproximateTimeSync(sensor.camera_ids,
                                                            **camera_sync_settings(sensor.frame_rate_hz))
-    cameras = {camera_topic(c): c for c in sensor.camera_ids}
+    cameras = camera_topics(sensor)
     for topic, _, time_ns, raw in bag.messages(list(cameras)):
         msg = deserialize(raw, Image, topic, time_ns)
         stamp_s = time_to_seconds(msg.header.stamp)
@@ -290,7 +290,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         source = choose_source(bag, sensor, source)
         # Images of cameras the description does not name are not read: those of another sensor's description, say
         # (left out without a word before; review)
-        cameras = {camera_topic(c) for c in sensor.camera_ids}
+        cameras = camera_topics(sensor)
         other_images = tuple(sorted(t for t, kind in bag.topics.items()
                                     if kind == IMAGE_TYPE and t not in cameras and bag.counts[t]))
         reader = FrameReader(sensor, predictor.image_size)

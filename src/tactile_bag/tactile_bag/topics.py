@@ -22,9 +22,19 @@ FORCES_TYPE = "tactile_msgs/msg/ForceDistribution"
 RELIABLE_DEPTH = 100
 
 
+def camera_topics(sensor: SensorDescription) -> dict[str, str]:
+    """The image topic of each camera of `sensor` -> its camera id, in the description's camera order."""
+    return {camera_topic(c): c for c in sensor.camera_ids}
+
+
+def other_sensor_hint(sensor: SensorDescription) -> str:
+    """What images on topics of no camera of `sensor` suggest (record and eval say it where they see them)."""
+    return f"the cameras of another sensor description than {sensor.source}? (--sensor FILE)"
+
+
 def stack_topics(sensor: SensorDescription) -> dict[str, str]:
     """Every topic the graph of `sensor` publishes -> its message type."""
-    topics = {camera_topic(c): IMAGE_TYPE for c in sensor.camera_ids}
+    topics = dict.fromkeys(camera_topics(sensor), IMAGE_TYPE)
     topics.update({BUNDLE_TOPIC: BUNDLE_TYPE, ESTIMATE_TOPIC: FORCES_TYPE, GROUND_TRUTH_TOPIC: FORCES_TYPE,
                    WRENCH_TOPIC: "geometry_msgs/msg/WrenchStamped",
                    MARKERS_TOPIC: "visualization_msgs/msg/MarkerArray"})
@@ -33,7 +43,7 @@ def stack_topics(sensor: SensorDescription) -> dict[str, str]:
 
 def default_record_topics(sensor: SensorDescription) -> list[str]:
     """What `tactile-bag record` takes without --topics: the images, the bundles, the estimate and the truth."""
-    return [*(camera_topic(c) for c in sensor.camera_ids), BUNDLE_TOPIC, ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC]
+    return [*camera_topics(sensor), BUNDLE_TOPIC, ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC]
 
 
 def absolute_topic(name: str, example: str = BUNDLE_TOPIC) -> str:
