@@ -67,7 +67,7 @@ from tactile_fusion.metrics import (
 )
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
-from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, TrainConfig
+from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, SettingsMismatchError, TrainConfig
 from tactile_sim import DatasetError, SceneError
 
 
@@ -155,17 +155,6 @@ def _named_by_option(message: str, args) -> str:
                   message)
 
 
-def _checkpoint_settings_by_option(message: str, args) -> str:
-    """A checkpoint's refusal of other training settings ("... other training settings: max_epochs 3 (now 4); ...")
-    naming the command-line options (--epochs), as _named_by_option does for a settings error (review)."""
-    head, sep, tail = message.partition("other training settings: ")
-    if not sep:
-        return message
-    settings, sep2, rest = tail.partition("; ")
-    return head + sep + re.sub(r"(?:^|(?<=, ))(\w+)(?= )", lambda match: _option_of(match[1], args) or match[1],
-                               settings) + sep2 + rest
-
-
 def _fractions(text: str) -> list[float]:
     """--fractions: comma-separated data fractions in (0, 1], checked before the base model trains for minutes."""
     from tactile_fusion.recalibration import checked_fractions
@@ -235,8 +224,8 @@ def cmd_train(args) -> int:
         metrics = train_and_export(sensor, splits, model_config, train_config, args.out, args.resume,
                                    progress=not args.quiet, threads=args.threads, data_source=source,
                                    head_extra=head_extra)
-    except CheckpointMismatchError as exc:
-        raise CheckpointMismatchError(_checkpoint_settings_by_option(str(exc), args)) from exc
+    except SettingsMismatchError as exc:  # named by the options that set them (--epochs, not max_epochs; review)
+        raise CheckpointMismatchError(exc.describe(lambda setting: _option_of(setting, args) or setting)) from exc
     print(metrics_table({f"{splits['test'].scene} test ({b})": m for b, m in metrics["backends"].items()}))
     print(f"model written to {args.out}")
     description = read_model_json(args.out)

@@ -229,6 +229,22 @@ class CheckpointMismatchError(ValueError):
     message says what to do)."""
 
 
+class SettingsMismatchError(CheckpointMismatchError):
+    """A checkpoint written with other training settings: `differences` lists (setting, then, now), each setting by
+    its TrainConfig name; `describe` names them otherwise (the command line by its options: --epochs, not
+    max_epochs)."""
+
+    def __init__(self, path: Path, differences: list[tuple[str, object, object]]):
+        self.path = path
+        self.differences = differences
+        super().__init__(self.describe())
+
+    def describe(self, name: Callable[[str], str] = str) -> str:
+        differ = ", ".join(f"{name(setting)} {then!r} (now {now!r})" for setting, then, now in self.differences)
+        return (f"checkpoint {self.path} was written with other training settings: {differ}; resume with the same "
+                "settings, or delete it and the checkpoints of the phases after it")
+
+
 @dataclass
 class TrainResult:
     initial_val_rmse: float         # normalised validation RMSE before the first epoch
@@ -539,10 +555,9 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
         raise CheckpointMismatchError(f"checkpoint {path} was written when --head-noise-sigma replaced the training "
                                       "frames (it now adds an imperfect copy): delete the checkpoint")
     then = {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved}
-    differ = ", ".join(f"{name} {then[k]!r} (now {now[k]!r})" for k, name in compared.items() if then[k] != now[k])
-    if differ:
-        raise CheckpointMismatchError(f"checkpoint {path} was written with other training settings: {differ}; resume "
-                                      "with the same settings, or delete it and the checkpoints of the phases after it")
+    differences = [(name, then[k], now[k]) for k, name in compared.items() if then[k] != now[k]]
+    if differences:
+        raise SettingsMismatchError(path, differences)
     trained_on = checkpoint.get("data")
     if data is not None and trained_on is not None and trained_on != data:
         differ = ", ".join(f"{k} {trained_on.get(k)!r} (now {data.get(k)!r})" for k in {**trained_on, **data}

@@ -553,20 +553,6 @@ def test_resume_into_a_directory_without_checkpoints_says_it_trains_from_scratch
     assert (out / MODEL_JSON).is_file()
 
 
-def test_a_checkpoints_other_settings_are_named_by_their_options():
-    """"max_epochs 3 (now 4)" named a setting no option has (--epochs; review)."""
-    from tactile_fusion.cli import _checkpoint_settings_by_option, build_parser
-
-    args = build_parser().parse_args(["train", "--out", "x"])
-    message = ("checkpoint /m/checkpoint_head.pt was written with other training settings: max_epochs 3 (now 4), "
-               "learning_rate 0.002 (now 0.001), head_noise_sigma 1.2 (now 0.0), loss_eps 1e-08 (now 1e-06); resume "
-               "with the same settings, or delete it and the checkpoints of the phases after it")
-    assert _checkpoint_settings_by_option(message, args) == message.replace("max_epochs", "--epochs").replace(
-        "learning_rate", "--learning-rate").replace("head_noise_sigma", "--head-noise-sigma")
-    other = "checkpoint /m/checkpoint_end_to_end.pt was trained on other data: frames 30 (now 60)"
-    assert _checkpoint_settings_by_option(other, args) == other
-
-
 def stopped_train(out: Path, stop: signal.Signals, when, *args) -> subprocess.CompletedProcess:
     """`tactile-fusion train --out OUT ARGS`, sent `stop` once `when()` holds (polled; 120 s at most). The child gets
     the default SIGINT disposition, so that Python installs its Ctrl-C handler even where this test runs as a
@@ -625,6 +611,14 @@ def test_ctrl_c_during_training_says_the_checkpoints_resume_it(tmp_path):
         "run the same command with --resume"), result.stderr
     checkpoint = torch.load(out / "checkpoint_end_to_end.pt", map_location="cpu", weights_only=False)
     assert "Traceback" not in result.stderr and checkpoint["train_config"]["max_epochs"] == 500
+    # Resumed with other settings, it names them by their options: "max_epochs 500 (now 400)" named a setting no
+    # option has (review).
+    resumed = run("train", "--out", str(out), "--frames", "200", "--epochs", "400", "--patience", "500",
+                  "--learning-rate", "0.001", "--resume", *TINY, check=False)
+    assert resumed.returncode == 2 and resumed.stderr.strip().endswith(
+        f"checkpoint {out / 'checkpoint_end_to_end.pt'} was written with other training settings: --epochs 500 (now "
+        "400), --learning-rate 0.002 (now 0.001); resume with the same settings, or delete it and the checkpoints of "
+        "the phases after it"), resumed.stderr
 
 
 def test_hard_cases_another_sensor_cannot_play_are_left_out_saying_why(tmp_path):
