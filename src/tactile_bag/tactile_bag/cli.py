@@ -68,9 +68,9 @@ def cmd_record(args) -> int:
         print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: "
               f"{other_sensor_hint(sensor)}", file=sys.stderr)
     for topic in recording.best_effort_topics:
-        print(f"tactile-bag record: {topic}: a best-effort publisher appeared while recording; the topic was "
-              "subscribed anew, best effort, to take its messages too (those sent while the new subscription was "
-              "matched are not in the bag)", file=sys.stderr)
+        print(f"tactile-bag record: {topic}: a best-effort publisher matched no reliable subscription; the topic was "
+              "subscribed anew, best effort, to take its messages too from then on (those sent while the new "
+              "subscription was matched are not in the bag)", file=sys.stderr)
     if not total and recording.stopped:  # not "no message within --wait": that had not run out (found in review)
         print("tactile-bag record: stopped before any message arrived", file=sys.stderr)
     elif not total:

@@ -16,7 +16,7 @@ from pathlib import Path
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy
 
 from tactile_bag.bagfile import BagError, BagWriter
 from tactile_bag.message_types import MessageTypeError, message_class
@@ -25,6 +25,9 @@ from tactile_conversions.stop_signals import until_stop_signal
 from tactile_description.command_line import stop_signals_ignored
 from tactile_description.value_checks import is_number
 
+#: The QoS of a topic that has a best-effort publisher (recording_qos, Recorder): a reliable subscription matches none.
+BEST_EFFORT = QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
+
 
 class Recorder(Node):
     """Subscribes every topic raw and writes each message into `bag` as it arrives.
@@ -32,10 +35,11 @@ class Recorder(Node):
     A best-effort publisher that appears after a topic was subscribed reliably (recording_qos chose reliable delivery
     because every publisher seen then offered it) matches no reliable subscription: its messages were lost without a
     word (review). Its incompatible-QoS event marks the topic, and `take_best_effort_publishers` subscribes it anew,
-    best effort, which matches every publisher; the topic is listed in `best_effort_topics`. Messages sent while the
-    new subscription is matched (milliseconds on one machine) are not recorded. Reliability is the only policy in
-    which a publisher can be incompatible with the recording's subscriptions: they ask for volatile durability, no
-    deadline and automatic liveliness, which every publisher offers.
+    best effort, which matches every publisher, after writing what the old subscription still held; the topic is
+    listed in `best_effort_topics`. Messages sent while the new subscription is matched (milliseconds on one machine)
+    are not recorded. Reliability is the only policy in which a publisher can be incompatible with the recording's
+    subscriptions: they ask for volatile durability, no deadline and automatic liveliness, which every publisher
+    offers (checked in review with publishers of each other kind).
     """
 
     def __init__(self, bag: BagWriter, topic_types: dict[str, str], qos: dict[str, QoSProfile]):
@@ -52,19 +56,27 @@ class Recorder(Node):
 
     def _subscribe(self, topic: str, qos: QoSProfile) -> None:
         msgtype = self.topic_types[topic]
-        events = SubscriptionEventCallbacks(incompatible_qos=lambda _, t=topic: self._reliability_refused.append(t))
+        events = SubscriptionEventCallbacks(incompatible_qos=lambda info, t=topic: self._on_incompatible(t, info))
         self._subscription_of[topic] = self.create_subscription(
             message_class(msgtype), topic, lambda raw, t=topic, m=msgtype: self.on_message(t, m, raw), qos, raw=True,
             event_callbacks=events)
 
+    def _on_incompatible(self, topic: str, info) -> None:
+        if info.last_policy_kind == QoSPolicyKind.RELIABILITY:
+            self._reliability_refused.append(topic)
+
     def take_best_effort_publishers(self) -> None:
         """Subscribe anew, best effort, each topic whose reliable subscription a best-effort publisher could not
-        match. Called between spins: not from the event's callback, whose subscription it destroys."""
+        match, once the messages the old subscription holds are written (destroying it dropped them: review).
+        Called between spins: not from the event's callback, whose subscription it destroys."""
         for topic in dict.fromkeys(self._reliability_refused):
-            if topic not in self.best_effort_topics:
-                self.destroy_subscription(self._subscription_of[topic])
-                self._subscribe(topic, QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT))
-                self.best_effort_topics.append(topic)
+            old = self._subscription_of[topic]
+            with old.handle:
+                while (taken := old.handle.take_message(old.msg_type, True)) is not None:
+                    self.on_message(topic, self.topic_types[topic], taken[0])
+            self.destroy_subscription(old)
+            self._subscribe(topic, BEST_EFFORT)
+            self.best_effort_topics.append(topic)
         self._reliability_refused.clear()
 
     def on_message(self, topic: str, msgtype: str, raw: bytes) -> None:
@@ -106,8 +118,7 @@ def recording_qos(node: Node, topic_types: dict[str, str], known: dict[str, str]
         offered = node.get_publishers_info_by_topic(topic)
         return bool(offered) and all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in offered)
 
-    best_effort = QoSProfile(depth=RELIABLE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
-    return {topic: qos_profile(msgtype) if topic in known or reliable(topic) else best_effort
+    return {topic: qos_profile(msgtype) if topic in known or reliable(topic) else BEST_EFFORT
             for topic, msgtype in topic_types.items()}
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import tempfile
 from pathlib import Path
 
 import yaml
@@ -79,15 +80,28 @@ def write_rviz_config(sensor: SensorDescription, path: str | Path | None = None)
     Without a path, to the file that sensor.launch.py gives RViz: `$ROS_HOME/tactile_bringup/rviz_<digest>.rviz`
     (ROS_HOME defaults to ~/.ros, where ROS keeps its logs), named by a digest of the configuration, so that every
     launch of a sensor description writes the same file again and two launches of different sensors do not share one.
-    A temporary directory per launch (before 2026-11-27) left one behind at every launch. The file is replaced in one
-    step (written beside, then renamed), so that an RViz starting meanwhile never reads half of it."""
+    A temporary directory per launch (before 2026-11-27) left one behind at every launch. Where that folder cannot be
+    written (a ROS_HOME that is a file or read-only, no home directory), a new temporary directory takes the file: the
+    graph must not fail to start for RViz's sake (review)."""
     text = yaml.safe_dump(rviz_config(sensor), sort_keys=False)
-    if path is None:
-        folder = Path(os.environ.get("ROS_HOME") or Path.home() / ".ros").expanduser() / "tactile_bringup"
+    if path is not None:
+        return _replace_file(Path(path), text)
+    name = f"rviz_{hashlib.sha256(text.encode()).hexdigest()[:16]}.rviz"
+    try:
+        folder = Path(os.environ.get("ROS_HOME") or Path.home() / ".ros").expanduser().resolve() / "tactile_bringup"
         folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"rviz_{hashlib.sha256(text.encode()).hexdigest()[:16]}.rviz"
-    path = Path(path)
+        return _replace_file(folder / name, text)
+    except (OSError, RuntimeError):  # RuntimeError: Path.home() of a user without a home directory
+        return _replace_file(Path(tempfile.mkdtemp(prefix="tactile_bringup_")) / name, text)
+
+
+def _replace_file(path: Path, text: str) -> Path:
+    """Write `path` in one step (written beside, then renamed), so that an RViz starting meanwhile never reads half
+    of it; nothing is left beside it if that fails."""
     partial = path.with_name(f".{path.name}.{os.getpid()}")
-    partial.write_text(text)
-    os.replace(partial, path)
+    try:
+        partial.write_text(text)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path

@@ -1,5 +1,6 @@
 import ast
 import inspect
+import tempfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -162,6 +163,26 @@ def test_each_launch_of_a_sensor_writes_its_rviz_config_to_one_file_under_ros_ho
     assert yaml.safe_load(write_rviz_config(pad).read_text()) == rviz_config(pad)
     assert yaml.safe_load(first.read_text()) == rviz_config(sensor)
     assert len(list(first.parent.iterdir())) == 2  # one file per sensor, nothing left beside them
+
+
+def test_an_unwritable_ros_home_gives_rvizs_config_a_temporary_directory(sensor, tmp_path, monkeypatch):
+    """mkdir under a ROS_HOME that is a file failed inside the launch file: the whole graph did not start (review)."""
+    import yaml
+
+    (tmp_path / "ros_home").write_text("a file")
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros_home"))
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # the system's temporary directory, here
+    written = write_rviz_config(sensor)
+    assert written.parent.parent == tmp_path / "tmp" and written.parent.name.startswith("tactile_bringup_")
+    assert yaml.safe_load(written.read_text()) == rviz_config(sensor)
+
+
+def test_a_config_that_cannot_be_written_leaves_nothing_beside_its_path(sensor, tmp_path):
+    (tmp_path / "taken.rviz").mkdir()  # os.replace cannot put a file there
+    with pytest.raises(OSError):
+        write_rviz_config(sensor, tmp_path / "taken.rviz")
+    assert [p.name for p in tmp_path.iterdir()] == ["taken.rviz"]
 
 
 @pytest.mark.parametrize("sensor_file", ["sensor.yaml", "skin_3x3.yaml"])
