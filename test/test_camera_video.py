@@ -231,6 +231,36 @@ def test_a_stream_that_never_answers_does_not_hold_up_the_nodes_stop(ros_domain,
     assert codes == [0], log
     assert stopped_after_s < 5.0, log  # ros2 launch sends SIGTERM 5 s after its SIGINT
     assert f"camera source '{url}' still blocks OpenCV after 1 s; leaving it to the end of the process" in log, log
+    assert "Failed to publish log message to rosout" not in log, log  # the warning came after the context was gone
+
+
+def test_a_tick_after_a_video_file_ended_without_loop_does_not_open_it_again(camera_node_of, tmp_path):
+    """The capture thread cancels the timer; a tick the executor had taken meanwhile reopened the file and published
+    its first frame again (review)."""
+    node = camera_node_of(write_video(tmp_path / "once.avi", *load_sensor().cameras[0].capture_size), loop="false")
+    for _ in range(VIDEO_FRAMES + 1):
+        node.grab()
+    assert node.timer.is_canceled() and node.frames_published == VIDEO_FRAMES
+    node.grab()  # the late tick
+    assert node.capture is None and node.frames_published == VIDEO_FRAMES
+
+
+def test_an_error_in_the_capture_thread_ends_the_spin_at_once(camera_node_of, tmp_path):
+    """The error is raised in the executor's thread through a guard condition, not at the next tick (rate_hz may be
+    once a day) nor never (review)."""
+    import rclpy
+
+    node = camera_node_of(write_video(tmp_path / "clip.avi", *load_sensor().cameras[0].capture_size),
+                          rate_hz=1.15741e-05)
+
+    def broken_read():
+        raise RuntimeError("the capture broke")
+
+    node.read_frame = broken_read
+    node.capture_thread.tick()  # as the timer's first tick, which at this rate comes a day later
+    with pytest.raises(RuntimeError, match="the capture broke"):
+        for _ in range(100):
+            rclpy.spin_once(node, timeout_sec=0.1)
 
 
 @pytest.fixture

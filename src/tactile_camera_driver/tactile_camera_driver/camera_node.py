@@ -33,12 +33,15 @@ stream that does not answer holds FFmpeg's open for 30 s) does not hold up a Ctr
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import sys
 import time
 from pathlib import Path
 
 import cv2
+from rclpy._rclpy_pybind11 import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -125,6 +128,7 @@ class CameraNode(Node):
         # first: rclpy destroys the node even if __init__ fails
         self.capture: cv2.VideoCapture | None = None
         self.capture_thread: CaptureThread | None = None
+        self.capture_left_blocked = False  # destroy_node left an OpenCV call blocked (main)
         quiet_opencv()
         self.camera_id = text(self, "camera_id", "cam0")
         self.source = self.declare_source()
@@ -140,7 +144,10 @@ class CameraNode(Node):
         self.next_open_s = 0.0
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
-        self.capture_thread = CaptureThread(self.grab, f"{self.camera_id} capture")
+        self.ended = False  # a video file played to its end with loop false
+        read_failed = self.create_guard_condition(lambda: self.capture_thread.raise_error())
+        self.capture_thread = CaptureThread(self.grab, f"{self.camera_id} capture",
+                                            on_error=lambda: self.wake(read_failed))
         self.timer = steady_timer(self, 1.0 / self.frame_rate_hz, self.capture_thread.tick)
         log_sensor_description(self, sensor)
 
@@ -158,14 +165,24 @@ class CameraNode(Node):
         raise ParameterError(f"{self.get_name()}: parameter source must be a device index (an integer from 0 to "
                              f"{MAX_DEVICE_INDEX}), a device path or a video file, got {value!r}")
 
+    @staticmethod
+    def wake(read_failed) -> None:
+        """Have the executor raise the capture thread's error, unless the node is being destroyed (nothing to end)."""
+        with contextlib.suppress(InvalidHandle):
+            read_failed.trigger()
+
     def destroy_node(self) -> None:
+        """Destroy the node, then stop the capture thread and release the source. In this order, the warning below,
+        after a Ctrl-C has shut the context down, goes to the console and the log file only, not to a /rosout that
+        is gone ("Failed to publish log message to rosout": review)."""
+        super().destroy_node()
         idle = self.capture_thread is None or self.capture_thread.close(CLOSE_TIMEOUT_S)
         if not idle:  # releasing a capture that another thread reads from is not safe
+            self.capture_left_blocked = True
             self.get_logger().warning(f"{self.camera_id}: camera source {self.source!r} still blocks OpenCV after "
                                       f"{CLOSE_TIMEOUT_S:g} s; leaving it to the end of the process")
         elif self.capture is not None:
             self.capture.release()
-        super().destroy_node()
 
     def ensure_open(self) -> bool:
         if self.capture is not None and self.capture.isOpened():
@@ -211,8 +228,10 @@ class CameraNode(Node):
                 f"{self.camera.capture_size[0]} x {self.camera.capture_size[1]} px, {self.frame_rate_hz:g} fps)")
 
     def grab(self) -> None:
-        """One frame tick, in the capture thread: open the source if need be, read a frame, publish it."""
-        if not clock_running(self) or not self.ensure_open():
+        """One frame tick, in the capture thread: open the source if need be, read a frame, publish it. Nothing once
+        a video file ended with loop false: a tick the executor had taken as the timer was cancelled reopened it
+        (review)."""
+        if self.ended or not clock_running(self) or not self.ensure_open():
             return
         frame, stamp = self.read_frame()
         if frame is None and self.on_no_frame():  # a video file played again: its first frame in this tick
@@ -250,6 +269,7 @@ class CameraNode(Node):
             else:  # "ended (0 frames published)" for a file never decoded (review)
                 self.get_logger().error(f"{self.camera_id}: video file {self.source!r} gave no frame OpenCV can "
                                         "decode (loop false): publishing nothing")
+            self.ended = True
             self.timer.cancel()
             self.capture.release()
             self.capture = None
@@ -266,4 +286,23 @@ class CameraNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    run_node(CameraNode, args)
+    """run_node; where the node left an OpenCV call blocked, the process then ends without Python's finalization: a
+    call that returned while Python finalized aborted the process (SIGABRT, exit code 134: its thread exited from
+    inside OpenCV's C++ code; review)."""
+    built: list[CameraNode] = []
+
+    def camera_node() -> CameraNode:
+        built.append(CameraNode())
+        return built[-1]
+
+    try:
+        run_node(camera_node, args)
+        exit_code = 0
+    except SystemExit as exc:
+        exit_code = exc.code
+    if any(node.capture_left_blocked for node in built):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(exit_code)
+    if exit_code:
+        raise SystemExit(exit_code)

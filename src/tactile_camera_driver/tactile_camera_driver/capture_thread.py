@@ -7,22 +7,26 @@ from collections.abc import Callable
 
 
 class CaptureThread:
-    """Runs `read_once` in a daemon thread of its own at each `tick()` (the node's timer), one call at a time: a tick
-    that comes while the call before it still runs is skipped, as a timer callback that blocked made the timer skip.
+    """Runs `read_once` in a daemon thread of its own at each `tick()` (the node's timer), one call at a time. The ticks
+    that come while a call runs are folded into one call right after it, as rcl folds the ticks that a timer callback
+    blocked past into one late call: a source a little slower than the rate reads back to back (dropping those ticks
+    halved the rate of a read 10 % longer than the period: review).
 
     Why a thread: OpenCV's open, grab and retrieve block, on a device until its next frame, and on a stream that does
     not answer for FFmpeg's open and read timeouts (30 s each; measured: a URL whose server accepts and never
     answers). Made in the timer callback, they held the executor, and a Ctrl-C, or the SIGINT of `ros2 launch` (which
-    sends SIGTERM and SIGKILL 5 s later), waited for them (review). The executor now stays free, and the process ends
-    while the thread still waits: it is a daemon thread.
+    sends SIGTERM 5 s later, and SIGKILL 5 s after that), waited for them (review). The executor now stays free, and
+    the process can end while the thread still waits: it is a daemon thread.
 
-    An exception raised by `read_once` is kept and raised by the next `tick()`, in the executor's thread, so that it
-    ends the node as it did when the call was made there (a thread's exception would be printed and forgotten, and
-    the node would run on without a frame).
+    An exception raised by `read_once` ends the thread; it is kept, and `on_error` is called (the trigger of a guard
+    condition of the node), whose callback in the executor's thread calls `raise_error`: the error ends the node at
+    once, as it did when the call was made in the timer callback (a thread's exception would be printed and forgotten,
+    and the node would run on without a frame).
     """
 
-    def __init__(self, read_once: Callable[[], None], name: str) -> None:
+    def __init__(self, read_once: Callable[[], None], name: str, on_error: Callable[[], None]) -> None:
         self._read_once = read_once
+        self._on_error = on_error
         self._reading = threading.Lock()  # held while read_once runs
         self._wanted = threading.Event()
         self._closed = False
@@ -31,12 +35,13 @@ class CaptureThread:
         self._thread.start()
 
     def tick(self) -> None:
-        """Ask for one call of read_once, unless one is asked for or running; raise what the last call raised."""
+        """Ask for a call of read_once: now, or right after the one running (however many ticks came meanwhile)."""
+        self._wanted.set()
+
+    def raise_error(self) -> None:
+        """Raise what read_once raised, if it did (in the executor's thread: see the class docstring)."""
         if self._error is not None:
-            error, self._error = self._error, None
-            raise error
-        if not (self._wanted.is_set() or self._reading.locked()):
-            self._wanted.set()
+            raise self._error
 
     def close(self, timeout_s: float) -> bool:
         """Start no further call. True once no call runs (waiting up to `timeout_s` for the one running), so that the
@@ -57,5 +62,7 @@ class CaptureThread:
                     return
                 try:
                     self._read_once()
-                except BaseException as exc:  # raised again by tick(), in the executor's thread
+                except BaseException as exc:  # raised again by raise_error(), in the executor's thread
                     self._error = exc
+                    self._on_error()
+                    return
