@@ -45,6 +45,7 @@ from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_s
 from tactile_conversions.timers import steady_timer
 from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
+from tactile_fusion.camera_arrivals import CameraArrivals
 from tactile_fusion.camera_rates import CameraPeriods, SyncSettings, period_misfits
 from tactile_msgs.msg import ImageBundle
 
@@ -76,7 +77,7 @@ class BundleNode(Node):
         self.camera_timeout_s = period_s(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
         self.restart_jump_s = defaults["restart_jump_s"]
         self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
-        self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, -float("inf"))
+        self.arrivals = CameraArrivals(self.sensor.camera_ids)
         self.live_cameras: tuple[str, ...] = ()
         self.lost_cameras: set[str] = set()
         self.sync: ApproximateTimeSync[Image] | None = None
@@ -105,9 +106,9 @@ class BundleNode(Node):
 
     def now_s(self) -> float:
         """Arrival time, by which a camera is found silent: the simulated clock's with use_sim_time (a bag played
-        slower, or paused, is judged in its own time), the steady clock's otherwise. On the system clock an NTP step
-        longer than camera_timeout_s counted every camera silent once, and a step back kept a silent one live for its
-        length (review)."""
+        slower, or paused, is judged in its own time; its steps back and its 0 before the first /clock are
+        CameraArrivals'), the steady clock's otherwise. On the system clock an NTP step longer than camera_timeout_s
+        counted every camera silent once, and a step back kept a silent one live for its length (review)."""
         clock = self.get_clock()
         if clock.ros_time_is_active:
             return clock.now().nanoseconds * 1e-9
@@ -123,8 +124,8 @@ class BundleNode(Node):
         if not self.live_cameras:
             # First image since start-up (or since every camera fell silent): give every camera one timeout to
             # show up, so that the first bundles hold all cameras that work rather than whichever came first.
-            self.last_arrival_s = dict.fromkeys(self.sensor.camera_ids, now)
-        self.last_arrival_s[camera_id] = now
+            self.arrivals.arrived(self.sensor.camera_ids, now)
+        self.arrivals.arrived([camera_id], now)
         if camera_id not in self.live_cameras:
             self.check_cameras()
         if self.sync is None or camera_id not in self.live_cameras:
@@ -164,8 +165,7 @@ class BundleNode(Node):
 
     def check_cameras(self) -> None:
         """Rebuild the synchroniser when the set of cameras that send images changes."""
-        now = self.now_s()
-        live = tuple(c for c, t in self.last_arrival_s.items() if now - t < self.camera_timeout_s)
+        live = self.arrivals.live(self.now_s(), self.camera_timeout_s)
         if live == self.live_cameras:
             return
         self.log_camera_changes(live)

@@ -82,7 +82,7 @@ def test_a_camera_that_sends_only_stamps_no_bundle_can_carry_is_left_out_like_a_
     assert node.sequence == 0  # the synchroniser waits for cam3 during its first timeout
     # Its first timeout over, without waiting for it on the wall clock (a pause of this process that long would
     # take the other cameras for silent as well).
-    node.last_arrival_s["cam3"] -= 1.0
+    node.arrivals.last_s["cam3"] -= 1.0
     node.check_cameras()  # the node's timer does this every camera_timeout_s / 2
     assert node.live_cameras == CAMERAS[:3]
     assert "no images from ['cam3'] for 0.50 s" in capfd.readouterr().err
@@ -147,7 +147,7 @@ def test_every_camera_falling_silent_is_said_as_such(bundler, capfd):
     node, _ = bundler("-p", "camera_timeout_s:=0.5")
     send(node, [100.0 + k * PERIOD_S for k in range(3)])
     for camera in CAMERAS:
-        node.last_arrival_s[camera] -= 1.0
+        node.arrivals.last_s[camera] -= 1.0
     node.check_cameras()
     err = capfd.readouterr().err
     assert node.live_cameras == () and "bundling []" not in err
@@ -175,3 +175,16 @@ def test_with_use_sim_time_a_cameras_silence_is_timed_on_the_simulated_clock(bun
     clock = node.create_publisher(Clock, "/clock", 10)
     at_1000_s = Clock(clock=Time(sec=1000))
     assert spin_until(node, lambda: clock.publish(at_1000_s) or node.now_s() == pytest.approx(1000.0), 10.0)
+
+
+def test_images_that_come_before_the_first_clock_message_do_not_make_the_cameras_silent_when_it_comes(bundler, capfd):
+    """With use_sim_time the clock reads 0 until the first /clock: the cameras whose images came before it were all
+    found silent once it came, and the synchroniser started over (review)."""
+    node, _ = bundler("-p", "use_sim_time:=true", "-p", "camera_timeout_s:=0.5")
+    send(node, [100.0 + k * PERIOD_S for k in range(3)])
+    assert node.now_s() == 0.0 and node.live_cameras == CAMERAS
+    clock = node.create_publisher(Clock, "/clock", 10)
+    at_1000_s = Clock(clock=Time(sec=1000))
+    assert spin_until(node, lambda: clock.publish(at_1000_s) or node.now_s() == pytest.approx(1000.0), 10.0)
+    node.check_cameras()
+    assert node.live_cameras == CAMERAS and "no images from" not in capfd.readouterr().err

@@ -1,0 +1,38 @@
+"""CameraArrivals: a camera's silence on a clock that steps back (a looped bag) or does not run yet (no /clock)."""
+
+from tactile_fusion.camera_arrivals import CameraArrivals
+
+CAMERAS = ("cam0", "cam1", "cam2")
+TIMEOUT_S = 0.25
+
+
+def test_a_camera_is_live_for_the_timeout_after_its_last_images():
+    arrivals = CameraArrivals(CAMERAS)
+    assert arrivals.live(100.0, TIMEOUT_S) == ()
+    arrivals.arrived(CAMERAS, 100.0)
+    arrivals.arrived(["cam0", "cam2"], 100.2)
+    assert arrivals.live(100.3, TIMEOUT_S) == ("cam0", "cam2")
+    assert arrivals.live(100.5, TIMEOUT_S) == ()
+
+
+def test_a_step_back_of_the_clock_keeps_a_silent_camera_silent():
+    """A bag played with --loop starts its clock again: on the raw readings the camera silent since 1050 s was live
+    again for the 52 s of the step, and the synchroniser waited for it (review)."""
+    arrivals = CameraArrivals(CAMERAS)
+    arrivals.arrived(CAMERAS, 1049.0)
+    for k in range(41):
+        arrivals.arrived(["cam0", "cam1"], 1050.0 + k * 0.05)  # cam2 silent for 2 s
+    arrivals.arrived(["cam0", "cam1"], 1000.0)  # the loop starts again
+    assert arrivals.live(1000.01, TIMEOUT_S) == ("cam0", "cam1")
+    arrivals.arrived(["cam2"], 1000.05)  # and it comes back when it sends again
+    assert arrivals.live(1000.06, TIMEOUT_S) == CAMERAS
+
+
+def test_images_before_the_clock_runs_count_from_its_first_reading():
+    """With use_sim_time the clock reads 0 until the first /clock: every camera was found silent when it came
+    (review)."""
+    arrivals = CameraArrivals(CAMERAS)
+    arrivals.arrived(["cam0", "cam1"], 0.0)
+    assert arrivals.live(0.0, TIMEOUT_S) == ("cam0", "cam1")
+    assert arrivals.live(1000.0, TIMEOUT_S) == ("cam0", "cam1")  # dated at the first reading
+    assert arrivals.live(1000.3, TIMEOUT_S) == ()
