@@ -49,7 +49,7 @@ class ModelConfig:
     """The network's shape. Camera ids and the bin grid come from the sensor description, not from here."""
 
     image_size: int = 128                       # square model image (pixels), the sensor's output size
-    conv_channels: tuple[int, ...] = (4, 8, 16, 16)  # one conv block (conv, 2x max pool, BN, ReLU) per entry
+    conv_channels: tuple[int, ...] = (4, 8, 16, 32, 32)  # one conv block (conv, 2x max pool, BN, ReLU) per entry
     hidden_features: int = 512                  # first fully connected layer of the shared CNN
     camera_features: int = 300                  # per-camera features (the paper's 300)
     dropout: float = 0.1

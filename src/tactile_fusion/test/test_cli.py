@@ -707,7 +707,7 @@ def one_camera_sensor(tmp_path) -> Path:
     ("train --conv-channels 4,-8 --out OUT", "train: error: --conv-channels must be one or more whole"),
     # int()'s "invalid literal for int() with base 10: 'a'" (walkthrough)
     ("train --conv-channels 4,a --out OUT", "train: error: --conv-channels must be whole numbers separated by commas, "
-     "such as 4,8,16,16, got '4,a'"),
+     "such as 4,8,16,32,32, got '4,a'"),
     # "must be >= 1 or None", though the option takes 0 for a dense layer (walkthrough)
     ("train --fusion-rank -1 --out OUT", "train: error: argument --fusion-rank: must be a whole number of ranks >= 0 "
      "(0: a dense fusion matrix), got '-1'"),
