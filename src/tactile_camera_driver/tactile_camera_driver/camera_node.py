@@ -36,12 +36,16 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import signal
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import cv2
-from rclpy._rclpy_pybind11 import InvalidHandle
+import rclpy.context
+from rclpy.exceptions import InvalidHandle
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
@@ -145,9 +149,9 @@ class CameraNode(Node):
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start
         self.ended = False  # a video file played to its end with loop false
-        read_failed = self.create_guard_condition(lambda: self.capture_thread.raise_error())
-        self.capture_thread = CaptureThread(self.grab, f"{self.camera_id} capture",
-                                            on_error=lambda: self.wake(read_failed))
+        read_failed = self.create_guard_condition(lambda: capture_thread.raise_error())
+        capture_thread = self.capture_thread = CaptureThread(self.grab, f"{self.camera_id} capture",
+                                                             on_error=lambda: self.wake(read_failed))
         self.timer = steady_timer(self, 1.0 / self.frame_rate_hz, self.capture_thread.tick)
         log_sensor_description(self, sensor)
 
@@ -173,8 +177,8 @@ class CameraNode(Node):
 
     def destroy_node(self) -> None:
         """Destroy the node, then stop the capture thread and release the source. In this order, the warning below,
-        after a Ctrl-C has shut the context down, goes to the console and the log file only, not to a /rosout that
-        is gone ("Failed to publish log message to rosout": review)."""
+        after a Ctrl-C has shut the context down, goes to the console and the log file only (see main), not to a
+        /rosout that is gone ("Failed to publish log message to rosout": review)."""
         super().destroy_node()
         idle = self.capture_thread is None or self.capture_thread.close(CLOSE_TIMEOUT_S)
         if not idle:  # releasing a capture that another thread reads from is not safe
@@ -288,7 +292,8 @@ class CameraNode(Node):
 def main(args: list[str] | None = None) -> None:
     """run_node; where the node left an OpenCV call blocked, the process then ends without Python's finalization: a
     call that returned while Python finalized aborted the process (SIGABRT, exit code 134: its thread exited from
-    inside OpenCV's C++ code; review)."""
+    inside OpenCV's C++ code; review). Before that, ROS's logging is finished, which writes the log file's buffer
+    (after a Ctrl-C, rclpy's shutdown leaves it to the process's end, which os._exit skips; review)."""
     built: list[CameraNode] = []
 
     def camera_node() -> CameraNode:
@@ -298,9 +303,16 @@ def main(args: list[str] | None = None) -> None:
     try:
         run_node(camera_node, args)
         exit_code = 0
-    except SystemExit as exc:
-        exit_code = exc.code
+    except SystemExit as exc:  # run_node's 1 or 2
+        exit_code = exc.code if isinstance(exc.code, int) else 1
+    except KeyboardInterrupt:  # a second Ctrl-C before run_node ignores them
+        exit_code = 128 + signal.SIGINT
+    except BaseException:  # an error of the teardown itself
+        traceback.print_exc()
+        exit_code = 1
     if any(node.capture_left_blocked for node in built):
+        if rclpy.context.g_logging_ref_count > 0:
+            rclpy_implementation.rclpy_logging_fini()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(exit_code)

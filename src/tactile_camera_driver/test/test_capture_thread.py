@@ -11,12 +11,11 @@ WAIT_S = 10.0  # for an event that comes at once unless the code is wrong
 
 
 class BlockingRead:
-    """A read_once that records its calls and, while `blocked` is clear, waits in its call as OpenCV's open does."""
+    """A read_once that records its calls and, while `released` is clear, waits in its call as OpenCV's open does."""
 
     def __init__(self):
         self.calls = 0
         self.called = threading.Semaphore(0)
-        self.blocked = threading.Event()
         self.released = threading.Event()
         self.released.set()
         self.threads = []
@@ -29,7 +28,7 @@ class BlockingRead:
 
 
 def wait_until_idle(capture):
-    """Until the read in progress has returned (a tick before that is skipped)."""
+    """Until the read in progress has returned (a tick before that would ask for one more read after it)."""
     deadline = time.monotonic() + WAIT_S
     while capture._reading.locked():
         assert time.monotonic() < deadline
@@ -100,4 +99,5 @@ def test_an_error_of_a_read_wakes_the_caller_which_raises_it():
     assert woken.wait(WAIT_S)
     with pytest.raises(RuntimeError, match="cannot decode the frame"):
         capture.raise_error()
-    assert not capture._thread.join(WAIT_S) and not capture._thread.is_alive()  # the thread ended with the error
+    capture._thread.join(WAIT_S)
+    assert not capture._thread.is_alive()  # the thread ended with the error

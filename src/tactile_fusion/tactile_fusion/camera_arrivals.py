@@ -30,11 +30,13 @@ class CameraArrivals:
             self._waiting.update(camera_ids)
 
     def live(self, reading_s: float, timeout_s: float) -> tuple[str, ...]:
-        """The cameras whose images arrived less than `timeout_s` before `reading_s` (while the clock does not run:
-        those that sent any), in their given order."""
+        """The cameras whose images arrived less than `timeout_s` before `reading_s`, in their given order. While the
+        clock does not run: those that sent since, and those live at its latest reading (a simulation reset to 0
+        revived a camera silent for long: review)."""
         if self._observe(reading_s):
             return tuple(c for c, t in self.last_s.items() if reading_s - t < timeout_s)
-        return tuple(c for c, t in self.last_s.items() if c in self._waiting or t > -float("inf"))
+        return tuple(c for c, t in self.last_s.items()
+                     if c in self._waiting or self._latest_s is not None and self._latest_s - t < timeout_s)
 
     def _observe(self, reading_s: float) -> bool:
         """Take a reading: shift the arrivals for a step back, date those that waited for the clock; whether it

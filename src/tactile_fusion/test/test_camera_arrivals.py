@@ -36,3 +36,12 @@ def test_images_before_the_clock_runs_count_from_its_first_reading():
     assert arrivals.live(0.0, TIMEOUT_S) == ("cam0", "cam1")
     assert arrivals.live(1000.0, TIMEOUT_S) == ("cam0", "cam1")  # dated at the first reading
     assert arrivals.live(1000.3, TIMEOUT_S) == ()
+
+
+def test_a_clock_reset_to_zero_does_not_revive_a_camera_silent_for_long():
+    """A simulation reset to 0 (paused, restarted) made every camera that ever sent live again (review)."""
+    arrivals = CameraArrivals(CAMERAS)
+    arrivals.arrived(CAMERAS, 100.0)
+    arrivals.arrived(["cam0", "cam1"], 105.0)
+    assert arrivals.live(105.1, TIMEOUT_S) == ("cam0", "cam1")
+    assert arrivals.live(0.0, TIMEOUT_S) == ("cam0", "cam1")
