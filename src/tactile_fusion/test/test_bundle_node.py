@@ -169,12 +169,17 @@ def test_a_cameras_silence_is_timed_on_the_steady_clock(bundler):
     assert before <= node.now_s() <= time.monotonic()
 
 
-def test_with_use_sim_time_a_cameras_silence_is_timed_on_the_simulated_clock(bundler):
-    """A bag played slower than it was recorded, or paused, is judged in its own time."""
-    node, _ = bundler("-p", "use_sim_time:=true")
+def assert_simulated_clock_reaches_1000_s(node) -> None:
+    """Publish /clock at 1000 s until the node's arrival clock reads it."""
     clock = node.create_publisher(Clock, "/clock", 10)
     at_1000_s = Clock(clock=Time(sec=1000))
     assert spin_until(node, lambda: clock.publish(at_1000_s) or node.now_s() == pytest.approx(1000.0), 10.0)
+
+
+def test_with_use_sim_time_a_cameras_silence_is_timed_on_the_simulated_clock(bundler):
+    """A bag played slower than it was recorded, or paused, is judged in its own time."""
+    node, _ = bundler("-p", "use_sim_time:=true")
+    assert_simulated_clock_reaches_1000_s(node)
 
 
 def test_images_that_come_before_the_first_clock_message_do_not_make_the_cameras_silent_when_it_comes(bundler, capfd):
@@ -183,8 +188,6 @@ def test_images_that_come_before_the_first_clock_message_do_not_make_the_cameras
     node, _ = bundler("-p", "use_sim_time:=true", "-p", "camera_timeout_s:=0.5")
     send(node, [100.0 + k * PERIOD_S for k in range(3)])
     assert node.now_s() == 0.0 and node.live_cameras == CAMERAS
-    clock = node.create_publisher(Clock, "/clock", 10)
-    at_1000_s = Clock(clock=Time(sec=1000))
-    assert spin_until(node, lambda: clock.publish(at_1000_s) or node.now_s() == pytest.approx(1000.0), 10.0)
+    assert_simulated_clock_reaches_1000_s(node)
     node.check_cameras()
     assert node.live_cameras == CAMERAS and "no images from" not in capfd.readouterr().err
