@@ -67,7 +67,13 @@ from tactile_fusion.metrics import (
 )
 from tactile_fusion.model import FEATURE_ACTIVATIONS, ModelConfig
 from tactile_fusion.sources import MIN_BLUR_SIGMA_PX
-from tactile_fusion.training import STEP_PRECISIONS, CheckpointMismatchError, SettingsMismatchError, TrainConfig
+from tactile_fusion.training import (
+    STEP_PRECISIONS,
+    CheckpointMismatchError,
+    SettingsMismatchError,
+    TrainConfig,
+    training_device,
+)
 from tactile_sim import DatasetError, SceneError
 
 
@@ -130,6 +136,7 @@ def _settings(args, cameras: int, **train_overrides) -> tuple[ModelConfig, Train
     try:
         model_config, train_config = _model_config(args), replace(_train_config(args), **train_overrides)
         train_config.check_batch_sizes(cameras)
+        training_device(train_config.device)
     except ValueError as exc:
         raise SettingsError(_named_by_option(str(exc), args)) from exc
     return model_config, train_config
@@ -178,7 +185,7 @@ def _train_config(args) -> TrainConfig:
                        head_misalign_fraction=args.head_misalign_fraction,
                        head_misalign_shift_px=args.head_misalign_shift_px,
                        head_misalign_rotation_deg=args.head_misalign_rotation_deg, head_cycles=args.head_cycles,
-                       head_precision=args.head_precision)
+                       head_precision=args.head_precision, device=args.device)
 
 
 def _further_draws(args, sensor):
@@ -526,8 +533,12 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         "alone (see docs/learning.md)")
     parser.add_argument("--head-precision", choices=list(STEP_PRECISIONS), default=train.head_precision,
                         help="precision of the forward pass in the steps of the head phase and of recalibration "
-                        "(default %(default)s: bf16 where the CPU has bf16 instructions, else fp32; see "
-                        "docs/learning.md)")
+                        "(default %(default)s: bf16 where the CPU, or the GPU of --device, has bf16 instructions, else "
+                        "fp32; see docs/learning.md)")
+    parser.add_argument("--device", default=train.device,
+                        help="where the gradient steps run: cpu (default) or cuda, cuda:N (a GPU, with a CUDA build of "
+                        "torch); the simulation, the caches of the conv trunk's output, the least-squares fits and the "
+                        "evaluation run on the CPU (see docs/learning.md)")
     parser.add_argument("--patience", type=int, default=train.patience,
                         help="early stopping patience (epochs, default %(default)s)")
     parser.add_argument("--seed", type=int, default=train.seed, help="of the model's initial weights, the batches, "

@@ -295,6 +295,11 @@ class ForceFusionNet(nn.Module):
         return self.config.image_size
 
     @property
+    def device(self) -> torch.device:
+        """Where its weights are: the CPU, or a GPU while training.fit runs its steps there."""
+        return self.force_scale_n.device
+
+    @property
     def component_indices(self) -> list[int]:
         """Indices into (fx, fy, fz) of the estimated components."""
         return [FORCE_COMPONENTS.index(c) for c in self.components]

@@ -201,7 +201,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
         "wall_time_s": {"training": training_wall_s,
                         **{p: r.wall_time_s for p, r in results.items() if isinstance(r, TrainResult)}},
         "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
-                    "torch": torch.__version__},
+                    "torch": torch.__version__, "gpu": _gpu_name(train_config.device)},
     })
     # Training finished: the model files supersede the checkpoints. A stop between two deletions (microseconds) would
     # leave some behind, and the stop's message would offer them to --resume: the stop waits for the last.
@@ -209,6 +209,12 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
         for checkpoint in out_dir.glob(CHECKPOINTS):
             checkpoint.unlink()
     return metrics
+
+
+def _gpu_name(device: str) -> str | None:
+    """The name of the GPU that TrainConfig.device names (None: the CPU), for training.json."""
+    parsed = torch.device(device)
+    return torch.cuda.get_device_name(parsed) if parsed.type == "cuda" else None
 
 
 def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, sensor: SensorDescription,

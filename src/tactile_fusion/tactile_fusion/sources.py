@@ -52,7 +52,9 @@ class ImageSource:
         picked = np.sort(indices)
         images = with_cameras_at_rest(np.asarray(self.frames.images[picked]), self.frames.reference,
                                       self.frames.camera_ok[picked])
-        return model.cnn(camera_batch(difference_images(torch.from_numpy(images), self.reference)))
+        # uint8 to the model's device: a quarter of the bytes of the float32 differences
+        difference = difference_images(torch.from_numpy(images).to(model.device), self.reference.to(model.device))
+        return model.cnn(camera_batch(difference))
 
     def predict(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
         return model.fuse(self.features_at(model, indices))
@@ -179,7 +181,7 @@ class CachedSource:
 
     def features_at(self, model: ForceFusionNet, indices: np.ndarray) -> torch.Tensor:
         """(B * C, camera_features) CNN features of the frames at `indices`, from the cache."""
-        x = self.features[np.sort(indices)]
+        x = self.features[np.sort(indices)].to(model.device)
         b, c, n = x.shape
         x = x.reshape(b * c, n)
         x = model.cnn.first_layer(x) if self.cut == "trunk" else model.cnn.first_layer.dropout(x)
@@ -288,7 +290,8 @@ def normalised_rmse(model: ForceFusionNet, source, batch_size: int = 64) -> floa
     total, count = 0.0, 0
     for start in range(0, len(source), batch_size):
         idx = np.arange(start, min(start + batch_size, len(source)))
-        err = source.predict(model, idx) - source.target(idx)
+        prediction = source.predict(model, idx)
+        err = prediction - source.target(idx).to(prediction.device)
         total += float(torch.sum(err.double() ** 2))
         count += err.numel()
     return float(np.sqrt(total / max(count, 1)))

@@ -39,12 +39,46 @@ from tactile_fusion.sources import Augmentation, CachedSource, ImageSource, norm
 STEP_PRECISIONS = ("auto", "bf16", "fp32")
 
 
-def native_bf16() -> bool:
-    """Whether this CPU multiplies bfloat16 matrices in hardware (AVX512-BF16 or AMX). Elsewhere bf16 is emulated and
-    slower than float32. (torch.cpu's private queries: a torch without them counts as without bf16.)"""
+def native_bf16(device: torch.device | None = None) -> bool:
+    """Whether `device` (None: the CPU) multiplies bfloat16 matrices in hardware: a CPU with AVX512-BF16 or AMX, a GPU
+    that CUDA says supports bf16. Elsewhere bf16 is emulated and slower than float32. (torch.cpu's private queries: a
+    torch without them counts as without bf16.)"""
+    if device is not None and device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
     cpu = torch.cpu
     return bool(getattr(cpu, "_is_avx512_bf16_supported", lambda: False)()
                 or getattr(cpu, "_is_amx_tile_supported", lambda: False)())
+
+
+#: Where the gradient steps of training run (TrainConfig.device): "cpu", or "cuda" / "cuda:N" for a GPU.
+DEVICE_KINDS = ("cpu", "cuda")
+
+
+def parsed_device(name: str) -> torch.device:
+    """TrainConfig.device as a torch.device; ValueError for anything but "cpu", "cuda" and "cuda:N" (whether that
+    GPU exists is `training_device`'s question)."""
+    refusal = ValueError(f"TrainConfig.device must be 'cpu', 'cuda' or 'cuda:N', got {name!r}")
+    try:
+        device = torch.device(name) if isinstance(name, str) else None  # torch takes 0 for cuda:0, or refuses it
+    except RuntimeError as exc:
+        raise refusal from exc
+    if device is None or device.type not in DEVICE_KINDS or (device.type == "cpu" and device.index is not None):
+        raise refusal
+    return device
+
+
+def training_device(name: str) -> torch.device:
+    """The torch.device that TrainConfig.device names, checked to exist here: a ValueError that says what this machine
+    has, before any frame is simulated, rather than a CUDA error from the first step."""
+    device = parsed_device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"TrainConfig.device {name!r}: this torch ({torch.__version__}) sees no CUDA GPU: train "
+                             "on 'cpu', or install a CUDA build of torch on a machine with an NVIDIA GPU")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ValueError(f"TrainConfig.device {name!r}: this machine has {torch.cuda.device_count()} CUDA GPU(s), "
+                             "numbered from 0")
+    return device
 
 
 #: The largest TrainConfig.seed: numpy's and torch's generators take seeds derived from it (seed * 100003 + epoch for
@@ -56,7 +90,8 @@ MAX_SEED = 2**32 - 1
 @dataclass(frozen=True)
 class TrainConfig:
     """How to train. Two runs with the same config, data and seed on the same kind of CPU give the same weights (the
-    last bits of the sums depend on the instruction set, and `head_precision` "auto" on whether it has bf16).
+    last bits of the sums depend on the instruction set, and `head_precision` "auto" on whether it has bf16); on a GPU
+    (`device`) they do not (see fit).
 
     Training has three phases (`train_phases`): end-to-end for up to `max_epochs`; then the head (fully connected layers
     and fusion) alone for up to `head_epochs` on cached conv features (an epoch over the frames and their imperfect copy
@@ -105,6 +140,7 @@ class TrainConfig:
     head_cycles: int = 5          # head phase, least-squares fit, repeated from there with a new copy this often
     head_precision: str = "auto"  # of the steps on cached features (head phase, recalibration), see STEP_PRECISIONS
     recalibration_epochs: int = 7  # modular recalibration: epochs of the last layers on cached features
+    device: str = "cpu"           # where the gradient steps run (`fit`): "cpu", or "cuda" / "cuda:N", a GPU
 
     def __post_init__(self):
         if not (is_whole_number(self.seed, 0) and self.seed <= MAX_SEED):
@@ -125,6 +161,7 @@ class TrainConfig:
         if self.head_precision not in STEP_PRECISIONS:
             raise ValueError(f"TrainConfig.head_precision must be one of {list(STEP_PRECISIONS)}, got "
                              f"{self.head_precision!r}")
+        parsed_device(self.device)
         try:
             self.head_augmentation()
         except ValueError as exc:
@@ -177,9 +214,9 @@ class TrainConfig:
                        head_precision=self._resolved_precision())
 
     def _resolved_precision(self) -> str:
-        """head_precision with "auto" decided for this CPU: "bf16" or "fp32"."""
+        """head_precision with "auto" decided for the device the steps run on: "bf16" or "fp32"."""
         if self.head_precision == "auto":
-            return "bf16" if native_bf16() else "fp32"
+            return "bf16" if native_bf16(parsed_device(self.device)) else "fp32"
         return self.head_precision
 
 
@@ -191,8 +228,9 @@ HEAD_SETTINGS = ("head_epochs", "head_learning_rate", "head_batch_size", "head_d
                  "head_blur_fraction", "head_blur_sigma_px", "head_misalign_fraction", "head_misalign_shift_px",
                  "head_misalign_rotation_deg", "head_precision")
 SHARED_SETTINGS = ("min_learning_rate", "seed", "loss_eps")
-#: Settings that decide no single phase's result: how many head cycles follow, how long recalibration runs.
-NOT_PHASE_SETTINGS = ("head_cycles", "recalibration_epochs")
+#: Settings that decide no single phase's result: how many head cycles follow, how long recalibration runs, where the
+#: steps run (a phase may resume on another device: its sums then differ in the last bits, as between two kinds of CPU).
+NOT_PHASE_SETTINGS = ("head_cycles", "recalibration_epochs", "device")
 #: What a phase's checkpoint is compared on: {field of the config that `fit` gets: the setting's name}. The head phase's
 #: config (`TrainConfig.head_phase`) carries the head's epochs as max_epochs (and its learning rate and batch size in
 #: both places; its patience follows its epochs).
@@ -303,6 +341,11 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     or on top of other frozen weights than the model's (the phase before it changed since), or on other data (`data`,
     see `data_identity`; a checkpoint that records none is not checked). on_epoch_end(epoch, record) is called after
     each epoch's checkpoint (an exception raised there interrupts training cleanly).
+
+    The steps run on config.device: the model goes there for the phase and back to the CPU when fit returns or raises
+    (the sources hand each batch to the model's device). On a GPU a run is not the CPU's run: its dropout masks come
+    from CUDA's generator (another draw), and cuDNN convolves in TF32. Nor are two GPU runs, or a run and its resumed
+    copy, equal to the bit: CUDA's backward pass of max pooling adds its gradients with atomics, in no fixed order.
     """
     if step_precision not in ("bf16", "fp32"):
         raise ValueError(f"fit: step_precision must be 'bf16' or 'fp32', got {step_precision!r}")
@@ -319,6 +362,20 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     if len(train) < min_batch:
         raise FrameDataError(f"fit: a {model.n_cameras}-camera model needs at least {min_batch} training frames "
                              f"(batch normalisation needs two images per batch), got {len(train)}; give more frames")
+    device = training_device(config.device)
+    model.to(device)  # moves the parameters in place: `params` are the optimiser's on the device
+    try:
+        return _fit_on(model, params, train, val, config, device, min_batch, checkpoint_path, resume, progress,
+                       on_epoch_end, desc, compared, data, step_precision, keep)
+    finally:
+        model.to("cpu")  # what fit's callers compute next (caches, fits, export) runs on the CPU
+
+
+def _fit_on(model: ForceFusionNet, params: list, train: BatchSource, val: BatchSource, config: TrainConfig,
+            device: torch.device, min_batch: int, checkpoint_path: str | Path | None, resume: bool, progress: bool,
+            on_epoch_end: Callable[[int, dict], None] | None, desc: str, compared: dict[str, str] | None,
+            data: dict | None, step_precision: str, keep: str) -> TrainResult:
+    """`fit` on a model already on `device`."""
     # The fused implementation updates all parameters in one kernel: 2.4 ms less per head step than Adam's loop over
     # them; in the end-to-end phase it makes no difference in time (docs/learning.md), one optimiser serves both.
     optimizer = torch.optim.Adam(params, lr=config.learning_rate, fused=True)
@@ -347,9 +404,9 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
         losses = []
         batches = epoch_batches(len(train), config.batch_size, config.seed, epoch, min_batch)
         for idx in tqdm(batches, desc=f"epoch {epoch}", unit="batch", leave=False, disable=not progress):
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=step_precision == "bf16"):
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=step_precision == "bf16"):
                 prediction = train.predict(model, idx)
-            loss = rmse_loss(prediction.float(), train.target(idx), config.loss_eps)
+            loss = rmse_loss(prediction.float(), train.target(idx).to(device), config.loss_eps)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -567,7 +624,8 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     # A phase that trains on top of frozen weights (the head on the conv trunk) must find the ones it was trained on:
     # a deleted and retrained end-to-end phase gives another trunk, and the checkpoint would put back the old one.
     changed = [name for name, p in model.named_parameters()
-               if not p.requires_grad and not torch.equal(checkpoint["model"].get(name, p), p.detach())]
+               if not p.requires_grad and name in checkpoint["model"]
+               and not torch.equal(checkpoint["model"][name], p.detach().cpu())]
     if changed:
         raise CheckpointMismatchError(f"checkpoint {path} was trained on top of other frozen weights than this model "
                                       f"has ({changed[0]}, ...): the phase before it was trained again since; delete "

@@ -59,6 +59,7 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     assert json.loads((out / MODEL_JSON).read_text())["components"] == ["fx", "fy", "fz"]
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
+    assert training["train_config"]["device"] == "cpu" and training["machine"]["gpu"] is None  # the default
     # The head also learnt from a further draw of those 60 frames (the default for a scene).
     assert training["data"]["head_extra"] == {"draws": 1, "scene": "paper_grid",
                                               "seeds": [training["data"]["seed"] + 1], "frames": 60}
@@ -520,6 +521,9 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
      "argument --head-extra-draws: must be a whole number of draws >= 0, got '-1'"),
     ("train", ["--dataset", "data", "--head-extra-draws", "1"],
      "--head-extra-draws 1: a dataset cannot be drawn again"),
+    ("train", ["--device", "gpu"], "--device must be 'cpu', 'cuda' or 'cuda:N', got 'gpu'"),
+    # a GPU this machine does not have: refused before the frames are simulated, whatever GPUs it has
+    ("recalibrate", ["--device", "cuda:99"], "--device 'cuda:99': this "),
     ("recalibrate", ["--recalibration-epochs", "0"], "--recalibration-epochs must be a whole number >= 1"),
     ("recalibrate", ["--fractions", "0.5,x"], "--fractions must be comma-separated numbers in (0, 1]"),
     ("recalibrate", ["--fractions", "0,1"], "--fractions must be comma-separated numbers in (0, 1]"),

@@ -331,6 +331,53 @@ def test_every_training_setting_belongs_to_one_phase_or_none():
     assert sorted(groups) == sorted(f.name for f in fields(TrainConfig))
 
 
+#: Tests of training on a GPU (`--device cuda`). CI has none; they ran on an NVIDIA H100 (docs/learning.md, Training on
+#: a GPU). Everything else about --device (what is refused, and where) is tested on the CPU.
+on_a_gpu = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+
+
+@on_a_gpu
+def test_training_on_a_gpu_trains_as_on_the_cpu_and_leaves_the_model_there(frames, tiny_config):
+    """The same steps on either device, the model back on the CPU. Without dropout: on a GPU its masks come from CUDA's
+    generator, so a run with dropout is another draw than the CPU's (docs/learning.md). One head cycle: a second
+    one restarts the head from a fit to 34 frames, and its error climbs tenfold on either device, where the differences
+    of rounding (cuDNN's TF32 convolutions) grow as fast."""
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=3, head_epochs=4, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1,
+                         head_precision="fp32", device="cuda")
+    without_dropout = replace(tiny_config, dropout=0.0)
+    on_gpu, on_cpu = model_for(frames, without_dropout), model_for(frames, without_dropout)
+    gpu = train_phases(on_gpu, train, val, config, fz_threshold=True)
+    cpu = train_phases(on_cpu, train, val, replace(config, device="cpu"), fz_threshold=True)
+    assert all(t.device.type == "cpu" for t in [*on_gpu.parameters(), *on_gpu.buffers()])
+    for phase in ("end_to_end", "head"):
+        assert [r["val_rmse"] for r in gpu[phase].history] == pytest.approx(
+            [r["val_rmse"] for r in cpu[phase].history], rel=0.02), phase
+    trained_rmse = normalised_rmse(on_gpu, ImageSource(val, on_gpu.force_scale_n))
+    assert trained_rmse < 0.8 * gpu["end_to_end"].initial_val_rmse
+    # The least-squares fit to 34 frames magnifies the differences: 1e-3 of relative noise on the initial weights moved
+    # its result by 1 % on the CPU.
+    assert trained_rmse == pytest.approx(normalised_rmse(on_cpu, ImageSource(val, on_cpu.force_scale_n)), rel=0.1)
+
+
+@on_a_gpu
+def test_a_run_interrupted_on_a_gpu_resumes_on_the_cpu(frames, tiny_config, tmp_path):
+    train, val = splits(frames)
+    config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1,
+                         device="cuda")
+    interrupt_in_head, _ = interrupt_after(3)  # 2 end-to-end epochs, then the 1st head epoch
+    interrupted = model_for(frames, tiny_config)
+    with pytest.raises(Interrupt):
+        train_phases(interrupted, train, val, config, tmp_path, on_epoch_end=interrupt_in_head)
+    assert all(p.device.type == "cpu" for p in interrupted.parameters())  # back on the CPU after the interruption
+    count_epochs, calls = interrupt_after(99)
+    resumed = model_for(frames, tiny_config)
+    results = train_phases(resumed, train, val, replace(config, device="cpu"), tmp_path, resume=True,
+                           on_epoch_end=count_epochs)
+    assert calls == [2, 3] and results["head"].epochs_run == 3  # the head went on where the GPU left it
+    assert all(bool(torch.isfinite(p).all()) for p in resumed.parameters())
+
+
 def test_further_head_cycles_start_from_the_fit_and_resume_exactly(frames, tiny_config, tmp_path):
     train, val = splits(frames)
     config = TrainConfig(max_epochs=1, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=2, head_cycles=2,

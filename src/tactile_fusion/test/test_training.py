@@ -1,5 +1,6 @@
 """The training loop: finite loss, learning, reproducibility, early stopping, checkpoints and resume."""
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -17,6 +18,7 @@ from tactile_fusion.training import (
     fit,
     native_bf16,
     rmse_loss,
+    training_device,
 )
 
 
@@ -327,6 +329,26 @@ def test_single_camera_training_with_one_frame_batches_is_refused_clearly(frames
 def test_bad_train_config_is_rejected(setting, value, message):
     with pytest.raises(ValueError, match=f"TrainConfig.{message}"):
         TrainConfig(**{setting: value})
+
+
+@pytest.mark.parametrize("device", ["gpu", "CUDA", "cpu:1", "cuda:x", "cuda:-1", "meta", "", 0])
+def test_a_device_other_than_the_cpu_or_a_cuda_gpu_is_rejected(device):
+    with pytest.raises(ValueError, match=f"TrainConfig.device must be 'cpu', 'cuda' or 'cuda:N', got {device!r}"):
+        TrainConfig(device=device)
+
+
+def test_training_on_a_gpu_this_machine_lacks_is_refused_before_a_step_and_leaves_the_model(frames, tiny_config):
+    missing = f"cuda:{torch.cuda.device_count()}"  # one past the last GPU: cuda:0 on a machine without one
+    says_what_it_has = rf"TrainConfig.device '{missing}': this (torch \(.*\) sees no CUDA GPU|machine has \d+ CUDA)"
+    with pytest.raises(ValueError, match=says_what_it_has):
+        training_device(missing)
+    model, _ = trained(frames, tiny_config, TrainConfig(max_epochs=1, batch_size=8, seed=2))
+    before = copy.deepcopy(model.state_dict())
+    train, val, _ = sources(frames)
+    with pytest.raises(ValueError, match=says_what_it_has):
+        fit(model, train, val, TrainConfig(max_epochs=1, batch_size=8, seed=2, device=missing))
+    assert all(torch.equal(value, model.state_dict()[key]) for key, value in before.items())
+    assert training_device("cpu") == torch.device("cpu")
 
 
 def test_batch_sizes_are_checked_against_the_camera_count_before_training():
