@@ -200,8 +200,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
         "phases": {p: r.to_dict() if isinstance(r, TrainResult) else r for p, r in results.items()},
         "wall_time_s": {"training": training_wall_s,
                         **{p: r.wall_time_s for p, r in results.items() if isinstance(r, TrainResult)}},
-        "machine": {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
-                    "torch": torch.__version__, "gpu": _gpu_name(train_config.device)},
+        "machine": machine_record(train_config),
     })
     # Training finished: the model files supersede the checkpoints. A stop between two deletions (microseconds) would
     # leave some behind, and the stop's message would offer them to --resume: the stop waits for the last.
@@ -211,10 +210,12 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
     return metrics
 
 
-def _gpu_name(device: str) -> str | None:
-    """The name of the GPU that TrainConfig.device names (None: the CPU), for training.json."""
-    parsed = torch.device(device)
-    return torch.cuda.get_device_name(parsed) if parsed.type == "cuda" else None
+def machine_record(train_config: TrainConfig) -> dict:
+    """What trained, as training.json and recalibration.json record it beside their wall times: torch's threads, the
+    CPU, torch's version and the GPU of train_config.device (None: the CPU)."""
+    device = torch.device(train_config.device)
+    return {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
+            "torch": torch.__version__, "gpu": torch.cuda.get_device_name(device) if device.type == "cuda" else None}
 
 
 def record_test_metrics(model_dir: Path, test: FrameSet, data_source: str, sensor: SensorDescription,

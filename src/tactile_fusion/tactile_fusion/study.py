@@ -22,7 +22,7 @@ from tactile_fusion.data import SPLITS, SceneDraws, describe_splits
 from tactile_fusion.evaluation import predict_torch
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ModelConfig
-from tactile_fusion.pipeline import train_model, training_splits
+from tactile_fusion.pipeline import machine_record, train_model, training_splits
 from tactile_fusion.plots import plot_recalibration
 from tactile_fusion.recalibration import checked_fractions, recalibration_sweep
 from tactile_fusion.training import TrainConfig
@@ -95,6 +95,7 @@ def run_recalibration_study(sensor: SensorDescription, scene: str | None, datase
         "base_cameras": len(base_ids),
         "data": {**describe_splits(splits), "head_extra": head_extra.describe()},
         "train_config": asdict(train_config),
+        "machine": machine_record(train_config),
         "model_config": model_config.to_dict(),
         "base_training": {"wall_time_s": timings["base"], "metrics": base_metrics},
         "full_training": {"wall_time_s": timings["full"], "metrics": full_metrics},

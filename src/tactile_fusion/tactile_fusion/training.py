@@ -40,11 +40,13 @@ STEP_PRECISIONS = ("auto", "bf16", "fp32")
 
 
 def native_bf16(device: torch.device | None = None) -> bool:
-    """Whether `device` (None: the CPU) multiplies bfloat16 matrices in hardware: a CPU with AVX512-BF16 or AMX, a GPU
-    that CUDA says supports bf16. Elsewhere bf16 is emulated and slower than float32. (torch.cpu's private queries: a
+    """Whether `device` (None: the CPU) multiplies bfloat16 matrices in hardware: a CPU with AVX512-BF16 or AMX, an
+    NVIDIA GPU from Ampere on. Elsewhere bf16 is emulated and slower than float32. (torch.cpu's private queries: a
     torch without them counts as without bf16.)"""
     if device is not None and device.type == "cuda":
-        return torch.cuda.is_bf16_supported()
+        # bf16 tensor cores from compute capability 8 (Ampere) on; torch.cuda.is_bf16_supported() also counts the
+        # emulation of older GPUs, which is slower than float32 (review)
+        return torch.cuda.get_device_properties(device).major >= 8
     cpu = torch.cpu
     return bool(getattr(cpu, "_is_avx512_bf16_supported", lambda: False)()
                 or getattr(cpu, "_is_amx_tile_supported", lambda: False)())
@@ -345,7 +347,8 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
     The steps run on config.device: the model goes there for the phase and back to the CPU when fit returns or raises
     (the sources hand each batch to the model's device). On a GPU a run is not the CPU's run: its dropout masks come
     from CUDA's generator (another draw), and cuDNN convolves in TF32. Nor are two GPU runs, or a run and its resumed
-    copy, equal to the bit: CUDA's backward pass of max pooling adds its gradients with atomics, in no fixed order.
+    copy, equal to the bit: cuDNN's backward algorithms need not add in a fixed order (torch.backends.cudnn.
+    deterministic is off).
     """
     if step_precision not in ("bf16", "fp32"):
         raise ValueError(f"fit: step_precision must be 'bf16' or 'fp32', got {step_precision!r}")
@@ -363,8 +366,8 @@ def fit(model: ForceFusionNet, train: BatchSource, val: BatchSource, config: Tra
         raise FrameDataError(f"fit: a {model.n_cameras}-camera model needs at least {min_batch} training frames "
                              f"(batch normalisation needs two images per batch), got {len(train)}; give more frames")
     device = training_device(config.device)
-    model.to(device)  # moves the parameters in place: `params` are the optimiser's on the device
     try:
+        model.to(device)  # moves the parameters in place: `params` are the optimiser's on the device
         return _fit_on(model, params, train, val, config, device, min_batch, checkpoint_path, resume, progress,
                        on_epoch_end, desc, compared, data, step_precision, keep)
     finally:

@@ -455,6 +455,7 @@ def test_recalibrate_writes_the_sweep_json_and_plot(tmp_path):
                  "--recalibration-epochs", "2", "--json", *TINY)
     report = json.loads(result.stdout)
     assert report["train_config"]["recalibration_epochs"] == 2
+    assert report["machine"]["gpu"] is None and report["machine"]["threads"] >= 1  # what the wall times were taken on
     assert [r["epochs_run"] for r in report["recalibration"]] == [2, 2]
     resolved = TrainConfig().recalibration_phase().head_precision  # "auto" as this CPU resolves it
     assert [r["step_precision"] for r in report["recalibration"]] == [resolved, resolved]

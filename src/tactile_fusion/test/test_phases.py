@@ -347,8 +347,11 @@ def test_training_on_a_gpu_trains_as_on_the_cpu_and_leaves_the_model_there(frame
                          head_precision="fp32", device="cuda")
     without_dropout = replace(tiny_config, dropout=0.0)
     on_gpu, on_cpu = model_for(frames, without_dropout), model_for(frames, without_dropout)
-    gpu = train_phases(on_gpu, train, val, config, fz_threshold=True)
+    devices = []  # where the model was after each epoch: on the GPU, or the option did nothing (review)
+    gpu = train_phases(on_gpu, train, val, config, fz_threshold=True,
+                       on_epoch_end=lambda epoch, record: devices.append(on_gpu.device.type))
     cpu = train_phases(on_cpu, train, val, replace(config, device="cpu"), fz_threshold=True)
+    assert devices == ["cuda"] * 7  # 3 end-to-end epochs and 4 of the head
     assert all(t.device.type == "cpu" for t in [*on_gpu.parameters(), *on_gpu.buffers()])
     for phase in ("end_to_end", "head"):
         assert [r["val_rmse"] for r in gpu[phase].history] == pytest.approx(
@@ -363,8 +366,10 @@ def test_training_on_a_gpu_trains_as_on_the_cpu_and_leaves_the_model_there(frame
 @on_a_gpu
 def test_a_run_interrupted_on_a_gpu_resumes_on_the_cpu(frames, tiny_config, tmp_path):
     train, val = splits(frames)
+    # The head's precision named: "auto" resolves per device, and a head checkpoint is compared on what it resolved to
+    # (docs/learning.md, Training on a GPU).
     config = TrainConfig(max_epochs=2, head_epochs=3, batch_size=8, learning_rate=5e-3, seed=1, head_cycles=1,
-                         device="cuda")
+                         head_precision="fp32", device="cuda")
     interrupt_in_head, _ = interrupt_after(3)  # 2 end-to-end epochs, then the 1st head epoch
     interrupted = model_for(frames, tiny_config)
     with pytest.raises(Interrupt):

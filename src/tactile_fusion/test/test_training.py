@@ -2,13 +2,14 @@
 
 import copy
 import dataclasses
+import types
 
 import numpy as np
 import pytest
 import torch
 
 from tactile_fusion.data import split_indices
-from tactile_fusion.model import force_scale_from_targets
+from tactile_fusion.model import ForceFusionNet, force_scale_from_targets
 from tactile_fusion.sources import ImageSource
 from tactile_fusion.training import (
     CheckpointMismatchError,
@@ -349,6 +350,32 @@ def test_training_on_a_gpu_this_machine_lacks_is_refused_before_a_step_and_leave
         fit(model, train, val, TrainConfig(max_epochs=1, batch_size=8, seed=2, device=missing))
     assert all(torch.equal(value, model.state_dict()[key]) for key, value in before.items())
     assert training_device("cpu") == torch.device("cpu")
+
+
+def test_fit_returns_the_model_to_the_cpu_also_when_training_stops(frames, tiny_config, monkeypatch):
+    """The callers of fit (caches, least-squares fits, export) compute on the CPU: a phase on a GPU that stops must not
+    leave the model there. Spied on the CPU, where both moves are to the CPU."""
+    moves = []
+    move = ForceFusionNet.to
+    monkeypatch.setattr(ForceFusionNet, "to", lambda model, device: moves.append(str(device)) or move(model, device))
+
+    def stop(epoch, record):
+        raise InterruptedError("stopped after the first epoch")
+
+    with pytest.raises(InterruptedError):
+        trained(frames, tiny_config, TrainConfig(max_epochs=2, batch_size=8, seed=2), on_epoch_end=stop)
+    assert moves == ["cpu", "cpu"]  # to config.device for the steps, back to the CPU after the stop
+
+
+@pytest.mark.parametrize("compute_capability, precision", [(7, "fp32"), (8, "bf16"), (9, "bf16")])
+def test_head_precision_auto_on_a_gpu_is_bf16_from_ampere_on(monkeypatch, compute_capability, precision):
+    """Older GPUs emulate bf16, slower than float32 (torch.cuda.is_bf16_supported counts that emulation; review). The
+    GPU's properties are stood in for here: CI has no GPU."""
+    monkeypatch.setattr(torch.cuda, "get_device_properties",
+                        lambda device: types.SimpleNamespace(major=compute_capability))
+    assert native_bf16(torch.device("cuda:0")) is (precision == "bf16")
+    assert TrainConfig(device="cuda").head_phase().head_precision == precision
+    assert TrainConfig(device="cuda", head_precision="fp32").head_phase().head_precision == "fp32"
 
 
 def test_batch_sizes_are_checked_against_the_camera_count_before_training():
