@@ -499,7 +499,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-extra-draws", type=whole_number_argument(0, "draws"),
                         help="the head phase and the least-squares fits also learn from this many further draws of "
                         "the scene (its presses drawn again from seed + 1, ...: other positions, depths and noise; "
-                        "default 1 for a scene, 0 for a dataset, which cannot be drawn again)")
+                        "default 2 for a scene, 0 for a dataset, which cannot be drawn again)")
     parser.add_argument("--head-cycles", type=int, default=train.head_cycles,
                         help="run the head phase and the least-squares fit this many times, each from the one before "
                         "with a new imperfect copy (default %(default)s, see docs/learning.md)")

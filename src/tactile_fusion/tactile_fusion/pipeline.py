@@ -55,7 +55,7 @@ from tactile_sim import DatasetError, Scene, SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
 #: Further draws of a training scene that the head phase learns from by default (SceneDraws; none for a dataset).
-DEFAULT_EXTRA_DRAWS = 1
+DEFAULT_EXTRA_DRAWS = 2
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
 CHECKPOINTS = "checkpoint_*.pt"

@@ -128,8 +128,8 @@ class CachedSource:
 
     def _allocate(self, model: ForceFusionNet, frames: FrameSet, samples: int) -> None:
         """One float32 tensor for every cached sample. The imperfect copy is redrawn into its place in every head
-        cycle, so the cache is never held beside a new one (it is one of the largest arrays of training: 0.9 GB for
-        make model's 110880 samples of 4 x 512 features)."""
+        cycle, so the cache is never held beside a new one (it is one of the largest arrays of training: 1.3 GB for
+        make model's 157080 samples of 4 x 512 features)."""
         self._cache = _features_at_cut(model, frames, self.cut, samples)
 
     def redraw_copy(self, model: ForceFusionNet, frames: FrameSet, augmentation: Augmentation | None,
