@@ -50,7 +50,7 @@ from tactile_fusion.inference import BACKENDS, load_predictor
 from tactile_fusion.model import ForceFusionNet, ModelConfig, estimated_components, force_scale_from_targets
 from tactile_fusion.plots import grid_bin_size_mm, plot_fz_maps
 from tactile_fusion.sources import ImageSource
-from tactile_fusion.training import TrainConfig, TrainResult, build_model, train_phases
+from tactile_fusion.training import TrainConfig, TrainResult, build_model, parsed_device, train_phases
 from tactile_sim import DatasetError, Scene, SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
@@ -213,7 +213,7 @@ def train_and_export(sensor: SensorDescription, splits: dict[str, FrameSet], mod
 def machine_record(train_config: TrainConfig) -> dict:
     """What trained, as training.json and recalibration.json record it beside their wall times: torch's threads, the
     CPU, torch's version and the GPU of train_config.device (None: the CPU)."""
-    device = torch.device(train_config.device)
+    device = parsed_device(train_config.device)
     return {"threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine(),
             "torch": torch.__version__, "gpu": torch.cuda.get_device_name(device) if device.type == "cuda" else None}
 
