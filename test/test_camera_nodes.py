@@ -346,10 +346,13 @@ def test_an_image_subscriber_that_came_first_does_not_start_the_scene_before_the
     """A bag recorder started before the demo subscribed to the images at once, and the scene played while DDS
     discovery took 2.4 s to connect the bundle node: the fusion node's reference showed a press (found in review, 1
     of 7 runs). Here the probe is the recorder; the bundle node starts 1 s after the scene could have played. Bundle k
-    must hold frame k: the bundle node heard the scene from its first frame (the probe itself may miss the first
-    bundles while it connects to the bundle node)."""
+    must hold frame k: the bundle node heard the scene from its first frame. The probe itself connects to the bundle
+    node while the scene plays and may miss its first bundles: once, on a loaded machine, more than 60 of them (a fresh
+    clone's CI run, 2026-11-27, when the scene lasted 2 s). The scene lasts 5 s, and the check is of the first bundle
+    the probe got."""
+    frames = 200
     scene = tmp_path / "rest.yaml"
-    scene.write_text("name: rest\nseed: 1\ntimeline:\n  - rest: {frames: 80}\n")
+    scene.write_text(f"name: rest\nseed: 1\ntimeline:\n  - rest: {{frames: {frames}}}\n")
     images, bundles = [], []
     ros_probe.create_subscription(Image, "/tactile/cam0/image", images.append, lossless_image_qos)
     ros_probe.create_subscription(ImageBundle, "/tactile/image_bundle", bundles.append, 100)
@@ -367,10 +370,8 @@ def test_an_image_subscriber_that_came_first_does_not_start_the_scene_before_the
     finally:
         codes = stop_nodes(processes)
     log = (tmp_path / "sim_once.log").read_text()
-    assert images_before == 0 and len(images) == 80, log
-    # The probe connects to the bundle node while the 2 s scene plays: on a loaded machine it missed more than 60 of
-    # the 80 bundles once (a fresh clone's CI run, 2026-11-27). The check is of the first bundle it got.
-    assert codes == [0, 0] and len(bundles) >= 5, log
+    assert images_before == 0 and len(images) == frames, log
+    assert codes == [0, 0] and bundles, log
     first = bundles[0]
     cam0 = first.images[list(first.camera_ids).index("cam0")]
     assert cam0.header.stamp == images[first.sequence].header.stamp

@@ -78,6 +78,7 @@ class BundleNode(Node):
         self.restart_jump_s = defaults["restart_jump_s"]
         self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
         self.arrivals = CameraArrivals(self.sensor.camera_ids)
+        self.arrival_clock_simulated = self.get_clock().ros_time_is_active
         self.live_cameras: tuple[str, ...] = ()
         self.lost_cameras: set[str] = set()
         self.sync: ApproximateTimeSync[Image] | None = None
@@ -108,11 +109,16 @@ class BundleNode(Node):
         """Arrival time, by which a camera is found silent: the simulated clock's with use_sim_time (a bag played
         slower, or paused, is judged in its own time; its steps back and its 0 before the first /clock are
         CameraArrivals'), the steady clock's otherwise. On the system clock an NTP step longer than camera_timeout_s
-        counted every camera silent once, and a step back kept a silent one live for its length (review)."""
+        counted every camera silent once, and a step back kept a silent one live for its length (review). rclpy lets
+        use_sim_time change while the node runs: the arrivals are then carried over to the other clock."""
         clock = self.get_clock()
-        if clock.ros_time_is_active:
-            return clock.now().nanoseconds * 1e-9
-        return time.monotonic()
+        simulated = clock.ros_time_is_active
+        if simulated != self.arrival_clock_simulated:
+            self.arrival_clock_simulated = simulated
+            self.arrivals.clock_changed()
+            self.get_logger().info(f"use_sim_time is now {str(simulated).lower()}: a camera's silence is timed on the "
+                                   f"{'simulated' if simulated else 'steady'} clock from now on")
+        return clock.now().nanoseconds * 1e-9 if simulated else time.monotonic()
 
     def on_image(self, camera_id: str, msg: Image) -> None:
         stamp_s = time_to_seconds(msg.header.stamp)

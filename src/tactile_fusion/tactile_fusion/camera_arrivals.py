@@ -21,6 +21,7 @@ class CameraArrivals:
         self.last_s = dict.fromkeys(camera_ids, -float("inf"))
         self._waiting: set[str] = set()  # arrived while the clock did not run
         self._latest_s: float | None = None
+        self._clock_changed = False
 
     def arrived(self, camera_ids: Iterable[str], reading_s: float) -> None:
         """Images of `camera_ids` arrived at `reading_s`."""
@@ -38,14 +39,22 @@ class CameraArrivals:
         return tuple(c for c, t in self.last_s.items()
                      if c in self._waiting or self._latest_s is not None and self._latest_s - t < timeout_s)
 
+    def clock_changed(self) -> None:
+        """The readings come from another clock from now on (use_sim_time set or cleared while the node runs): each
+        camera keeps its age at the latest reading of the old clock, counted on from the new clock's first reading. The
+        steady clock's hours since boot against a bag's simulated seconds read as a step: a step forward made every
+        camera silent at once."""
+        self._clock_changed = True
+
     def _observe(self, reading_s: float) -> bool:
-        """Take a reading: shift the arrivals for a step back, date those that waited for the clock; whether it
-        runs."""
+        """Take a reading: shift the arrivals for a step back or another clock, date those that waited for the clock;
+        whether it runs."""
         if not reading_s:
             return False
-        if self._latest_s is not None and reading_s < self._latest_s:
+        if self._latest_s is not None and (reading_s < self._latest_s or self._clock_changed):
             step_s = reading_s - self._latest_s
             self.last_s = {c: t + step_s for c, t in self.last_s.items()}
+        self._clock_changed = False
         self._latest_s = reading_s
         self.last_s.update(dict.fromkeys(self._waiting, reading_s))
         self._waiting.clear()

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import rclpy
 from builtin_interfaces.msg import Time
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
 from tactile_conversions.images import mono8_to_msg
@@ -169,17 +170,17 @@ def test_a_cameras_silence_is_timed_on_the_steady_clock(bundler):
     assert before <= node.now_s() <= time.monotonic()
 
 
-def assert_simulated_clock_reaches_1000_s(node) -> None:
-    """Publish /clock at 1000 s until the node's arrival clock reads it."""
+def assert_simulated_clock_reaches(node, seconds: int = 1000) -> None:
+    """Publish /clock at `seconds` until the node's arrival clock reads it."""
     clock = node.create_publisher(Clock, "/clock", 10)
-    at_1000_s = Clock(clock=Time(sec=1000))
-    assert spin_until(node, lambda: clock.publish(at_1000_s) or node.now_s() == pytest.approx(1000.0), 10.0)
+    at = Clock(clock=Time(sec=seconds))
+    assert spin_until(node, lambda: clock.publish(at) or node.now_s() == pytest.approx(seconds), 10.0)
 
 
 def test_with_use_sim_time_a_cameras_silence_is_timed_on_the_simulated_clock(bundler):
     """A bag played slower than it was recorded, or paused, is judged in its own time."""
     node, _ = bundler("-p", "use_sim_time:=true")
-    assert_simulated_clock_reaches_1000_s(node)
+    assert_simulated_clock_reaches(node)
 
 
 def test_images_that_come_before_the_first_clock_message_do_not_make_the_cameras_silent_when_it_comes(bundler, capfd):
@@ -188,6 +189,20 @@ def test_images_that_come_before_the_first_clock_message_do_not_make_the_cameras
     node, _ = bundler("-p", "use_sim_time:=true", "-p", "camera_timeout_s:=0.5")
     send(node, [100.0 + k * PERIOD_S for k in range(3)])
     assert node.now_s() == 0.0 and node.live_cameras == CAMERAS
-    assert_simulated_clock_reaches_1000_s(node)
+    assert_simulated_clock_reaches(node)
     node.check_cameras()
     assert node.live_cameras == CAMERAS and "no images from" not in capfd.readouterr().err
+
+
+def test_use_sim_time_cleared_while_the_node_runs_keeps_the_cameras_live(bundler, capfd):
+    """rclpy lets use_sim_time change at runtime: after a simulated clock at 1 s the steady clock's time since boot
+    read as a step forward, and every camera was found silent at once (noticed in stop 41's review)."""
+    node, _ = bundler("-p", "use_sim_time:=true", "-p", "camera_timeout_s:=0.5")
+    assert_simulated_clock_reaches(node, 1)
+    send(node, [100.0 + k * PERIOD_S for k in range(3)])
+    node.set_parameters([Parameter("use_sim_time", value=False)])
+    assert node.now_s() == pytest.approx(time.monotonic(), abs=1.0)
+    node.check_cameras()
+    err = capfd.readouterr().err
+    assert node.live_cameras == CAMERAS and "no images from" not in err, err
+    assert "use_sim_time is now false: a camera's silence is timed on the steady clock from now on" in err

@@ -45,3 +45,15 @@ def test_a_clock_reset_to_zero_does_not_revive_a_camera_silent_for_long():
     arrivals.arrived(["cam0", "cam1"], 105.0)
     assert arrivals.live(105.1, TIMEOUT_S) == ("cam0", "cam1")
     assert arrivals.live(0.0, TIMEOUT_S) == ("cam0", "cam1")
+
+
+def test_another_clock_keeps_each_cameras_age():
+    """use_sim_time cleared while the bundle node runs: the steady clock's hours since boot after a bag's simulated
+    seconds read as a step forward, and every camera was found silent at once (noticed in stop 41's review)."""
+    arrivals = CameraArrivals(CAMERAS)
+    arrivals.arrived(["cam2"], 99.9)
+    arrivals.arrived(["cam0", "cam1"], 100.2)
+    arrivals.clock_changed()
+    assert arrivals.live(5000.0, TIMEOUT_S) == ("cam0", "cam1")  # ages 0 and 0.3 s at the old clock's 100.2 s
+    assert arrivals.live(5000.2, TIMEOUT_S) == ("cam0", "cam1")
+    assert arrivals.live(5000.3, TIMEOUT_S) == ()  # and they age on the new clock
