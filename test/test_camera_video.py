@@ -375,3 +375,29 @@ def test_a_log_level_the_user_set_for_opencv_is_kept(camera_node_of, monkeypatch
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_INFO)
     camera_node_of(MISSING_DEVICE_INDEX)
     assert cv2.utils.logging.getLogLevel() == cv2.utils.logging.LOG_LEVEL_INFO
+
+
+@pytest.mark.parametrize(("user_level", "heard"), [(None, False), ("16", True)])
+def test_ffmpegs_own_messages_are_left_to_fatal_ones_unless_the_user_set_a_level(ros_domain, tmp_path, monkeypatch,
+                                                                                 user_level, heard):
+    """FFmpeg reads its log level once per process, at its first capture: only a node process of its own shows the
+    node's level at work (this test process opened captures before). A file that is no video had FFmpeg print "moov
+    atom not found" at every retry beside the node's throttled error; a level the user set (16, errors) keeps it."""
+    if user_level is not None:
+        monkeypatch.setenv("OPENCV_FFMPEG_LOGLEVEL", user_level)
+    not_a_video = tmp_path / "not_a_video.mp4"
+    not_a_video.write_bytes(np.random.default_rng(0).integers(0, 256, 20000, dtype=np.uint8).tobytes())
+    process = start_node(camera_spec("not_a_video_camera", "cam0", not_a_video, reopen_period_s=0.1), tmp_path)
+    log = tmp_path / "not_a_video_camera.log"
+    try:
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and "cannot open camera source" not in log.read_text():
+            time.sleep(0.05)
+        time.sleep(0.5)  # about five retries more
+        running = process.poll() is None
+    finally:
+        codes = stop_nodes([process])
+    text = log.read_text()
+    assert running and codes == [0], text
+    assert f"cam0: cannot open camera source '{not_a_video}'" in text, text
+    assert ("moov atom not found" in text) == heard, text
