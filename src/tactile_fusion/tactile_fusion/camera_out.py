@@ -19,9 +19,9 @@ def rest_view(reference: np.ndarray) -> np.ndarray:
     sensor noise, one fixed pattern, so that an estimate does not depend on a draw.
 
     Why not the reference itself: that is a difference of exactly 0, which no training frame has (every frame
-    carries sensor noise), and the shipped model read it as contact: one camera out on a surface at rest gave
-    0.37-0.45 N of total Fz, against 0 with this view, which also errs 3 % less per bin and 7 % more in total
-    with presses (docs/learning.md, "A camera out").
+    carries sensor noise), and the model shipped on 2026-11-24 read it as contact: one camera out on a surface at
+    rest gave 0.37-0.45 N of total Fz, against 0 with this view, which also errs 3 % less per bin and 7 % more in
+    total with presses (docs/learning.md, "A camera out").
     """
     return np.clip(reference + _rest_noise(reference.shape), 0, 255).astype(np.uint8)
 
@@ -34,8 +34,8 @@ def with_cameras_at_rest(images: np.ndarray, reference: np.ndarray, camera_ok: n
     Why a frame equal to its reference: it is a difference of exactly 0, the failure `rest_view` avoids, and no camera
     with sensor noise delivers one. It comes from a camera that shows one image all the time (a still image or a
     looped video as the source, a lens cap or an LED off from start-up, so that the reference is that image too) or
-    from a scene simulated without noise. Read as it is, the shipped model reported 1.6 N of contact for such a frame
-    from every camera, and 0.37-0.45 N for one such camera beside three with noise."""
+    from a scene simulated without noise. Read as it is, the model shipped on 2026-11-24 reported 1.6 N of contact for
+    such a frame from every camera, and 0.37-0.45 N for one such camera beside three with noise."""
     ok = (np.ones(images.shape[:2], dtype=bool) if camera_ok is None else np.asarray(camera_ok, dtype=bool))
     if ok.shape != images.shape[:2]:
         raise ValueError(f"camera_ok: expected shape {images.shape[:2]} (frames, cameras), got {ok.shape}")

@@ -238,8 +238,8 @@ class SceneDraws:
 
     What they are for: the head phase and the least-squares fit learn from them besides the training split
     (train_phases). Their frames are new samples of the scene's own distribution, none of them a test frame. The head
-    costs far less per frame than the end-to-end phase, and it needed data: the shipped model fitted its own
-    training frames to 1.80 mN per bin but its test frames to 2.48 (docs/learning.md).
+    costs far less per frame than the end-to-end phase, and it needed data: the five-cycle model of 2026-11-23 fitted
+    its own training frames to 1.80 mN per bin but its test frames to 2.48 (docs/learning.md).
     """
 
     sensor: SensorDescription

@@ -226,10 +226,10 @@ def difference_images(images: torch.Tensor, reference: torch.Tensor) -> torch.Te
     255 / gain - reference. Where that bound is positive (a bright particle moved in) it is kept; where it is
     negative the sign is unknown, and the difference is 0 ("nothing moved here"). Taken as it is, the bound made
     the bright particles of an over-exposed image (gain 2.5: 255 / 2.5 = 102 against their 150-255) read as
-    particles gone dark: 40.7 mN per bin in the effects scene's over-exposure window (shipped model); with the
-    bound clipped at 0, 4.6 mN (its clean window: 2.9). In the default scene's frames the pixels are saturated
-    almost only where the reference is (1.4e-5 of them), and the test split's error is the same to 0.1 uN
-    (docs/learning.md).
+    particles gone dark: 40.7 mN per bin in the effects scene's over-exposure window (the model shipped on
+    2026-11-24); with the bound clipped at 0, 4.6 mN (its clean window: 2.9). In the default scene's frames the
+    pixels are saturated almost only where the reference is (1.4e-5 of them), and the test split's error is the same
+    to 0.1 uN (docs/learning.md).
     """
     current = images.to(torch.float32)
     reference = reference.to(torch.float32)
