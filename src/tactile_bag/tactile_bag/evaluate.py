@@ -8,9 +8,10 @@ compared with the simulator's ground truth recorded beside them.
    reference frames, the pixel-wise mean of the first `reference_bundles` complete bundles (every camera present
    and readable), or, when `REFERENCE_PATIENCE_BUNDLES` bundles bring fewer complete ones, of the last
    `reference_bundles` of them over the cameras usable in each (the others left out: live_estimation.ReferenceFrames),
-   rounded to uint8, the bundles until then not estimated; a malformed bundle (not one image per camera id) is
-   skipped; then every later bundle through the predictor, a missing or unreadable camera shown at rest
-   (tactile_fusion.camera_out; it reports "no contact") and the estimate counted as degraded, and whether each
+   rounded to uint8, the bundles until then not estimated; a malformed bundle (not one image per camera id) or one of
+   another sensor (a camera the sensor description does not name) is skipped; then every later bundle through the
+   predictor, a missing or unreadable camera shown at rest (tactile_fusion.camera_out; it reports "no contact") and
+   the estimate counted as degraded, and whether each
    camera's images still match its reference frame checked (live_estimation.ReferenceMatch).
 4. Each estimate is matched with the ground-truth message nearest to its bundle stamp, if one lies within
    `match_tolerance_s` (the bundle stamp is the median of the cameras' capture stamps, the truth is stamped
@@ -34,7 +35,7 @@ from sensor_msgs.msg import Image
 from tactile_bag.bagfile import BagError, BagReader, DefinitionMismatchError
 from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE, camera_topics
 from tactile_conversions.forces import forces_from_msg
-from tactile_conversions.images import frame_from_images, is_malformed_bundle
+from tactile_conversions.images import bundle_problem, frame_from_images
 from tactile_conversions.ros_time import is_ros_stamp, is_ros_time, time_to_seconds
 from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S
 from tactile_description import SensorDescription
@@ -56,7 +57,7 @@ class BundleFrame:
     stamp_s: float
     images: np.ndarray
     camera_ok: np.ndarray  # (C,) bool: False for a camera missing from the bundle or with an unreadable image
-    malformed: bool = False  # not one image per camera id (images.is_malformed_bundle): skipped, not estimated
+    unusable: bool = False  # malformed or of another sensor (images.bundle_problem): skipped, not estimated
 
 
 @dataclass
@@ -175,7 +176,7 @@ class FrameReader:
         frame, camera_ok, problems = frame_from_images(camera_ids, images, self.camera_ids, self.shape)
         for reason, _ in problems:
             self.skip(reason)
-        return BundleFrame(stamp_s, frame, camera_ok, is_malformed_bundle(camera_ids, images))
+        return BundleFrame(stamp_s, frame, camera_ok, bundle_problem(camera_ids, images, self.camera_ids) is not None)
 
 
 def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader) -> Iterator[BundleFrame]:
@@ -310,7 +311,7 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
         stamps, estimates, camera_ok, off_reference = [], [], [], []
         for frame in frames:
             bundles += 1
-            if frame.malformed:  # counted as skipped by the reader; not a frame of the reference either
+            if frame.unusable:  # counted as skipped by the reader; not a frame of the reference either
                 continue
             result = live.add(frame.images, frame.camera_ok)
             if result.for_reference:

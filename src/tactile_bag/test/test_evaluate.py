@@ -356,12 +356,14 @@ def test_unusable_images_leave_their_camera_out(sensor, sim_frames):
     small = mono8_to_msg(np.zeros((64, 64), np.uint8), stamp, "cam1_optical")
     bad = mono8_to_msg(sim_frames[0].images[2], stamp, "cam2_optical")
     bad.encoding = "16UC1"
-    frame = reader.frame(1.0, ["cam0", "cam1", "cam2", "cam9"], [good, small, bad, good])
+    frame = reader.frame(1.0, ["cam0", "cam1", "cam2"], [good, small, bad])
     np.testing.assert_array_equal(frame.camera_ok, [True, False, False, False])
     np.testing.assert_array_equal(frame.images[0], sim_frames[0].images[0])
-    assert not frame.images[1:].any()
-    assert reader.skipped == {"cam1 image of 64 x 64 pixels": 1, "unreadable image of cam2": 1,
-                              "image of unknown camera 'cam9'": 1}
+    assert not frame.images[1:].any() and not frame.unusable
+    assert reader.skipped == {"cam1 image of 64 x 64 pixels": 1, "unreadable image of cam2": 1}
+    of_another_sensor = reader.frame(1.0, ["cam0", "cam9"], [good, good])
+    assert of_another_sensor.unusable and not of_another_sensor.camera_ok.any()
+    assert reader.skipped["bundle of another sensor"] == 1
 
 
 def test_a_named_truth_topic_must_be_in_the_bag(sim_bag, model_dir, capsys):

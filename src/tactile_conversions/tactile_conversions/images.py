@@ -57,11 +57,23 @@ def msg_to_array(msg: Image, camera_id: str) -> np.ndarray:
     return pixels[:, :, ::-1] if msg.encoding == "rgb8" else pixels  # always hand out BGR, OpenCV's order
 
 
-def is_malformed_bundle(camera_ids: Sequence[str], images: Sequence[Image]) -> bool:
-    """Whether a bundle has another number of camera ids than images: which image is whose cannot be told, so the
-    bundle is skipped, neither estimated nor counted towards the reference frames (frame_from_images reports it as
-    "malformed bundle" and gives no usable image)."""
-    return len(camera_ids) != len(images)
+def bundle_problem(camera_ids: Sequence[str], images: Sequence[Image],
+                   sensor_camera_ids: Sequence[str]) -> tuple[str, str] | None:
+    """Why a whole bundle cannot be used, as (reason, detail), or None. Such a bundle is skipped, neither estimated nor
+    counted towards the reference frames (frame_from_images gives no usable image of it):
+    - another number of camera ids than images: which image is whose cannot be told;
+    - a camera the sensor description does not name: a bundle of another sensor (a bundle node run with another
+      sensor description, a bag of another sensor). The images of the cameras that both descriptions name come from
+      cameras elsewhere under another surface, and an estimate from them was published as complete (review)."""
+    if len(camera_ids) != len(images):
+        return ("malformed bundle", f"{len(camera_ids)} camera ids {list(camera_ids)} for {len(images)} image(s); the "
+                "bundle is skipped")
+    unknown = [c for c in camera_ids if c not in sensor_camera_ids]
+    if unknown:
+        return ("bundle of another sensor", f"cameras {unknown} are not in the sensor description, whose cameras are "
+                f"{list(sensor_camera_ids)}: the bundle node (or the bag) bundles another sensor's cameras; give both "
+                "the same sensor_config; the bundle is skipped")
+    return None
 
 
 def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor_camera_ids: Sequence[str],
@@ -69,20 +81,17 @@ def frame_from_images(camera_ids: Sequence[str], images: Sequence[Image], sensor
     """One bundle's image messages as a model frame, in the sensor's camera order.
 
     Returns the (C, H, W) uint8 frame (black where a camera gave nothing usable), camera_ok (C,) and, for each
-    image that could not be used, (reason, detail): an unknown camera, a camera's second image, an unreadable
-    message, a wrong size. A bundle with another number of camera ids than images (a malformed message: which image
-    is whose cannot be told, `is_malformed_bundle`) gives no usable image and that one problem: skip it.
+    image that could not be used, (reason, detail): a camera's second image, an unreadable message, a wrong size. A
+    bundle that cannot be used as a whole (`bundle_problem`: malformed, or of another sensor) gives no usable image
+    and that one problem: skip it.
     """
     frame = np.zeros((len(sensor_camera_ids), *image_shape), np.uint8)
     camera_ok = np.zeros(len(sensor_camera_ids), bool)
-    if is_malformed_bundle(camera_ids, images):
-        return frame, camera_ok, [("malformed bundle", f"{len(camera_ids)} camera ids {list(camera_ids)} for "
-                                   f"{len(images)} image(s); the bundle is skipped")]
+    whole = bundle_problem(camera_ids, images, sensor_camera_ids)
+    if whole is not None:
+        return frame, camera_ok, [whole]
     problems = []
     for camera_id, msg in zip(camera_ids, images, strict=True):
-        if camera_id not in sensor_camera_ids:
-            problems.append((f"image of unknown camera {camera_id!r}", f"expected one of {list(sensor_camera_ids)}"))
-            continue
         i = list(sensor_camera_ids).index(camera_id)
         if camera_ok[i]:
             problems.append((f"second image of {camera_id}", "the first one is used"))

@@ -3,7 +3,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 
-from tactile_conversions.images import ImageMessageError, frame_from_images, mono8_to_msg, msg_to_array
+from tactile_conversions.images import ImageMessageError, bundle_problem, frame_from_images, mono8_to_msg, msg_to_array
 
 
 def test_mono8_roundtrip_keeps_pixels_stamp_and_frame():
@@ -55,12 +55,23 @@ def test_bundle_images_become_a_frame_in_the_sensor_order():
     small = mono8_to_msg(np.zeros((2, 2), np.uint8), Time(), "cam0_optical")
     broken = Image(height=4, width=4, encoding="mono8", step=4)
     broken.data = bytes(3)
-    frame, ok, problems = frame_from_images(["cam2", "cam0", "cam1", "cam9"], [good, small, broken, good], cams,
-                                            (4, 4))
+    frame, ok, problems = frame_from_images(["cam2", "cam0", "cam1"], [good, small, broken], cams, (4, 4))
     assert frame.shape == (3, 4, 4) and np.all(frame[2] == 7) and np.all(frame[:2] == 0)
     assert ok.tolist() == [False, False, True]
-    assert [reason for reason, _ in problems] == ["cam0 image of 2 x 2 pixels", "unreadable image of cam1",
-                                                  "image of unknown camera 'cam9'"]
+    assert [reason for reason, _ in problems] == ["cam0 image of 2 x 2 pixels", "unreadable image of cam1"]
+
+
+def test_a_bundle_of_another_sensor_gives_no_usable_image():
+    """A bundle node run with another sensor description (cam0 to cam8 of a 3 x 3 skin): the images of cam0 to cam2,
+    cameras elsewhere under another surface, gave an estimate published as complete (review)."""
+    cams = ("cam0", "cam1", "cam2")
+    images = [mono8_to_msg(np.full((4, 4), 7, np.uint8), Time(), f"cam{i}_optical") for i in range(4)]
+    frame, ok, problems = frame_from_images(["cam0", "cam1", "cam2", "cam3"], images, cams, (4, 4))
+    assert not ok.any() and not frame.any()
+    assert problems == [bundle_problem(["cam0", "cam1", "cam2", "cam3"], images, cams)]
+    assert problems[0][0] == "bundle of another sensor" and "cameras ['cam3'] are not in the sensor description" \
+        in problems[0][1]
+    assert bundle_problem(["cam2", "cam0"], images[:2], cams) is None  # a bundle without some cameras is usable
 
 
 def test_a_bundle_with_more_camera_ids_than_images_gives_no_usable_image():

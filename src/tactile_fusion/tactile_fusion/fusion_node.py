@@ -38,7 +38,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from tactile_conversions.forces import force_distribution_msg, force_markers, wrench_msg
-from tactile_conversions.images import frame_from_images, is_malformed_bundle
+from tactile_conversions.images import bundle_problem, frame_from_images
 from tactile_conversions.node_main import run_node
 from tactile_conversions.parameters import (
     ParameterError,
@@ -162,11 +162,12 @@ class FusionNode(Node):
 
     def estimate(self, bundle: ImageBundle) -> None:
         """Capture the reference or publish the estimate of one bundle."""
+        whole = bundle_problem(bundle.camera_ids, bundle.images, self.sensor.camera_ids)
+        if whole is not None:
+            self.report_problems(bundle.sequence, [whole])
+            return  # neither estimated nor counted towards the reference frames
         images, camera_ok, problems = frame_from_images(bundle.camera_ids, bundle.images, self.sensor.camera_ids,
                                                         self.image_shape)
-        if is_malformed_bundle(bundle.camera_ids, bundle.images):
-            self.report_problems(bundle.sequence, problems)
-            return  # neither estimated nor counted towards the reference frames
         self.cameras_in_bundles.update(bundle.camera_ids)
         try:
             result = self.live.add(images, camera_ok)

@@ -144,19 +144,36 @@ def test_cameras_missing_from_a_bundle_are_named(fusion, press_frames, capfd, ca
            in capfd.readouterr().err
 
 
-def test_a_malformed_bundle_is_skipped_and_the_node_goes_on(fusion, press_frames, capfd):
+def malformed(msg: ImageBundle) -> ImageBundle:
+    msg.images = msg.images[:3]  # four camera ids, three images
+    return msg
+
+
+def of_another_sensor(msg: ImageBundle) -> ImageBundle:
+    """As a bundle node run with another sensor description bundles: its cam3 is a camera this sensor has not (a
+    3 x 3 skin's cam0 to cam8: the estimate of the other cameras went out as complete; review)."""
+    msg.camera_ids = ["cam0", "cam1", "cam2", "cam4"]
+    return msg
+
+
+UNUSABLE = [(malformed, "malformed bundle (4 camera ids ['cam0', 'cam1', 'cam2', 'cam3'] for 3 image(s); the bundle "
+             "is skipped)"),
+            (of_another_sensor, "bundle of another sensor (cameras ['cam4'] are not in the sensor description, whose "
+             "cameras are ['cam0', 'cam1', 'cam2', 'cam3']: the bundle node (or the bag) bundles another sensor's "
+             "cameras; give both the same sensor_config; the bundle is skipped)")]
+
+
+@pytest.mark.parametrize(("spoil", "said"), UNUSABLE)
+def test_a_bundle_that_cannot_be_used_is_skipped_and_the_node_goes_on(fusion, press_frames, capfd, spoil, said):
     node, estimates = fusion
     for sequence in range(2):
         node.on_bundle(bundle(press_frames[sequence], sequence))
-    malformed = bundle(press_frames[2], 2)
-    malformed.images = malformed.images[:3]  # four camera ids, three images
-    node.on_bundle(malformed)
+    node.on_bundle(spoil(bundle(press_frames[2], 2)))
     node.on_bundle(bundle(press_frames[2], 3))
     assert spin_until(node, lambda: len(estimates) == 1, 10.0)
-    assert not spin_until(node, lambda: len(estimates) > 1, 0.3)  # nothing from the malformed bundle
-    assert "bundle 2: malformed bundle (4 camera ids ['cam0', 'cam1', 'cam2', 'cam3'] for 3 image(s); the bundle is " \
-        "skipped)" in capfd.readouterr().err
-    assert list(estimates[0].missing_camera_ids) == []
+    assert not spin_until(node, lambda: len(estimates) > 1, 0.3)  # nothing from the bundle that cannot be used
+    assert f"bundle 2: {said}" in capfd.readouterr().err
+    assert list(estimates[0].missing_camera_ids) == [] and estimates[0].header.stamp.sec == 1_700_000_003
 
 
 @pytest.mark.parametrize(("sec", "nanosec"), [(-5, 0), (-1, 1_500_000_000)])
@@ -179,12 +196,11 @@ def test_a_bundle_stamped_before_1970_is_skipped_not_published_with_its_stamp(fu
         "bundle is skipped)" in capfd.readouterr().err
 
 
-def test_a_malformed_bundle_does_not_count_towards_the_reference(fusion, press_frames):
+@pytest.mark.parametrize("spoil", [malformed, of_another_sensor])
+def test_a_bundle_that_cannot_be_used_does_not_count_towards_the_reference(fusion, press_frames, spoil):
     node, estimates = fusion
     node.on_bundle(bundle(press_frames[0], 0))
-    malformed = bundle(press_frames[1], 1)
-    malformed.images = malformed.images[:3]
-    node.on_bundle(malformed)
+    node.on_bundle(spoil(bundle(press_frames[1], 1)))
     assert node.live.reference.images is None and node.live.reference.frames_seen == 1  # still one of 2 to come
     node.on_bundle(bundle(press_frames[1], 2))
     node.on_bundle(bundle(press_frames[2], 3))
