@@ -34,6 +34,10 @@ MAX_REFERENCE_BUNDLES = 400
 #: Bundles the reference capture waits for its complete ones before it does without the cameras missing from them
 #: (ReferenceFrames): 2 s at the sensor's 40 Hz.
 REFERENCE_PATIENCE_BUNDLES = 80
+#: The most frames of a reference whose `mismatch_levels` give its rest levels (spread over them): a median needs no
+#: more, and each costs about 0.8 ms in the bundle callback that completes the reference; 400 of them held it for
+#: 0.3 s, 4 s beside other busy processes, and the bundles queued meanwhile were lost (review).
+REST_LEVEL_FRAMES = 20
 
 
 def mismatch_levels(images: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -124,7 +128,8 @@ class ReferenceFrames:
         self.images[~cameras] = 0
         self.cameras = cameras
         if len(frames) > 1:
-            self.rest_levels = np.median([mismatch_levels(f, self.images) for f in frames], axis=0)
+            spread = np.linspace(0, len(frames) - 1, min(len(frames), REST_LEVEL_FRAMES)).round().astype(int)
+            self.rest_levels = np.median([mismatch_levels(frames[i], self.images) for i in spread], axis=0)
             self.still = cameras & np.logical_and.reduce([(f == frames[0]).all(axis=(1, 2)) for f in frames[1:]])
         self._complete = []
         self._recent.clear()
