@@ -178,7 +178,8 @@ def _fractions(text: str) -> list[float]:
 
 def _train_config(args) -> TrainConfig:
     return TrainConfig(max_epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.learning_rate,
-                       patience=args.patience, seed=args.seed, head_epochs=args.head_epochs,
+                       end_to_end_dropout=args.end_to_end_dropout, patience=args.patience, seed=args.seed,
+                       head_epochs=args.head_epochs,
                        head_batch_size=args.head_batch_size, head_learning_rate=args.head_learning_rate,
                        head_dropout=args.head_dropout, head_noise_sigma=args.head_noise_sigma,
                        head_blur_fraction=args.head_blur_fraction, head_blur_sigma_px=args.head_blur_sigma_px,
@@ -511,9 +512,12 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
                         help="frames per step of the head phase and of recalibration")
     parser.add_argument("--head-learning-rate", type=LEARNING_RATE, default=train.head_learning_rate,
                         help="learning rate of the head phase and of recalibration (default %(default)s)")
+    parser.add_argument("--end-to-end-dropout", type=float, default=train.end_to_end_dropout,
+                        help="dropout rate of the fully connected layers in the end-to-end phase (default "
+                        "%(default)s; the model's, the paper's, is 0.1)")
     parser.add_argument("--head-dropout", type=float, default=train.head_dropout,
                         help="dropout rate of the fully connected layers in the head phase and recalibration (default "
-                        "%(default)s; the end-to-end phase uses the model's, 0.1)")
+                        "%(default)s)")
     parser.add_argument("--head-noise-sigma", type=float, default=train.head_noise_sigma,
                         help="the head phase also learns from an imperfect copy of the training frames (the "
                         "least-squares fusion fit from the frames alone): Gaussian noise with a standard deviation "

@@ -22,7 +22,7 @@ from tactile_fusion.least_squares import fit_fusion
 from tactile_fusion.metrics import force_metrics
 from tactile_fusion.model import ForceFusionNet, FusionLayer
 from tactile_fusion.sources import CachedSource
-from tactile_fusion.training import TrainConfig, TrainResult, fit, head_dropout
+from tactile_fusion.training import TrainConfig, TrainResult, fit, phase_dropout
 
 
 def add_camera(base: ForceFusionNet, camera_ids: tuple[str, ...]) -> ForceFusionNet:
@@ -81,12 +81,12 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
                 progress: bool = False) -> tuple[ForceFusionNet, TrainResult, float]:
     """Add the cameras of `train` that `base` lacks and retrain the last CNN layer and the fusion layer.
 
-    The gradient phase runs with `config.recalibration_phase()` at the head phase's dropout (`head_dropout`) and
-    keeps its last epoch; as in full training, the least-squares fit of the fusion layer follows. Like a head cycle
+    The gradient phase runs with `config.recalibration_phase()` at the head phase's dropout (`TrainConfig.head_dropout`)
+    and keeps its last epoch; as in full training, the least-squares fit of the fusion layer follows. Like a head cycle
     (training.train_phases), the phase is judged after its fit: unless the trained layers, fitted, have the lower
     validation RMSE, the starting point with only its fusion fitted is the model returned (the result's kept_epoch is
-    then 0), also when the training diverged to NaN. Scoring the epochs
-    before the fit kept the starting point with 10-50 % of the training data (docs/learning.md). Returns the model,
+    then 0), also when the training diverged to NaN. Scoring the epochs before the fit kept the starting point with
+    10-50 % of the training data (docs/learning.md). Returns the model,
     the training result and the wall time in seconds, feature caching and both fits included. Non-finite targets are
     refused (data.FrameDataError).
     """
@@ -96,7 +96,7 @@ def recalibrate(base: ForceFusionNet, train: FrameSet, val: FrameSet, config: Tr
     cached_train, cached_val = CachedSource(model, train, "hidden"), CachedSource(model, val, "hidden")
     start = copy.deepcopy(model.state_dict())
     phase = config.recalibration_phase()
-    with head_dropout(model, config):
+    with phase_dropout(model, config.head_dropout):
         result = fit(model, cached_train, cached_val, phase, progress=progress, desc="recalibrate",
                      step_precision=phase.head_precision, keep="last")
     trained_val = fit_fusion(model, cached_train, cached_val)["val_rmse_after"]

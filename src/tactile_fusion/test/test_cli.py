@@ -513,6 +513,7 @@ def test_a_dataset_for_another_sensor_is_refused_with_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize("command, setting, message", [
     ("train", ["--head-dropout", "1.5"], "--head-dropout must be in [0, 1)"),
+    ("train", ["--end-to-end-dropout", "1"], "--end-to-end-dropout must be in [0, 1)"),
     # named the field, TrainConfig.max_epochs, not the option (walkthrough)
     ("train", ["--epochs", "0"], "--epochs must be a whole number >= 1"),
     ("train", ["--seed", "-1"], "--seed must be a whole number from 0 to 4294967295, got -1"),

@@ -491,7 +491,7 @@ def test_bf16_steps_leave_validation_in_float32(frames, tiny_config, monkeypatch
     assert seen == {(True, torch.bfloat16), (False, torch.float32)}
 
 
-def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(frames, tiny_config):
+def test_each_phase_trains_at_its_own_dropout_rate_and_restores_the_models(frames, tiny_config):
     train, val = splits(frames)
     model = model_for(frames, tiny_config)
     rates = []
@@ -499,29 +499,35 @@ def test_the_head_phase_trains_at_its_own_dropout_rate_and_restores_the_models(f
     def record_rates(epoch, record):
         rates.append((model.cnn.first_layer.dropout.p, model.cnn.last_layer.dropout.p))
 
-    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, head_dropout=0.3, head_cycles=1)
+    config = TrainConfig(max_epochs=1, head_epochs=2, batch_size=8, end_to_end_dropout=0.4, head_dropout=0.3,
+                         head_cycles=1)
     train_phases(model, train, val, config, on_epoch_end=record_rates)
-    assert rates == [(0.1, 0.1), (0.3, 0.3), (0.3, 0.3)]
-    train_phases(model, train, val, replace(config, head_dropout=None), on_epoch_end=record_rates)
+    assert rates == [(0.4, 0.4), (0.3, 0.3), (0.3, 0.3)]
+    train_phases(model, train, val, replace(config, end_to_end_dropout=None, head_dropout=None),
+                 on_epoch_end=record_rates)
     assert rates[3:] == [(0.1, 0.1)] * 3  # None: the model's rate throughout
     assert model.cnn.set_dropout(0.2) == 0.1  # restored after the phase
     defaults = replace(TrainConfig(), max_epochs=1, head_epochs=2, batch_size=8)
     train_phases(model, train, val, defaults, on_epoch_end=record_rates)
-    # The default: no dropout in the head phase (all its cycles) ...
-    assert rates[6:] == [(0.2, 0.2)] + [(0.0, 0.0)] * 2 * defaults.head_cycles
-    assert defaults.head_augmentation().active  # ... which also learns from an imperfect copy of the frames
+    # The default: no dropout in any phase (the head phase in all its cycles) ...
+    assert rates[6:] == [(0.0, 0.0)] * (1 + 2 * defaults.head_cycles)
+    assert defaults.head_augmentation().active  # ... whose head also learns from an imperfect copy of the frames
 
-    def interrupt_in_head(epoch, record):
-        if model.cnn.first_layer.dropout.p == 0.3:
-            raise KeyboardInterrupt
+    def interrupt_in(rate):
+        def interrupt(epoch, record):
+            if model.cnn.first_layer.dropout.p == rate:
+                raise KeyboardInterrupt
+        return interrupt
 
-    with pytest.raises(KeyboardInterrupt):  # ... and when the phase is interrupted
-        train_phases(model, train, val, config, on_epoch_end=interrupt_in_head)
-    assert model.cnn.first_layer.dropout.p == model.cnn.last_layer.dropout.p == 0.2
+    for rate in (0.4, 0.3):  # ... and when a phase is interrupted
+        with pytest.raises(KeyboardInterrupt):
+            train_phases(model, train, val, config, on_epoch_end=interrupt_in(rate))
+        assert model.cnn.first_layer.dropout.p == model.cnn.last_layer.dropout.p == 0.2
     with pytest.raises(ValueError, match="rate must be in"):
         model.cnn.set_dropout(1.0)
-    with pytest.raises(ValueError, match="head_dropout"):
-        TrainConfig(head_dropout=-0.1)
+    for name in ("end_to_end_dropout", "head_dropout"):
+        with pytest.raises(ValueError, match=name):
+            TrainConfig(**{name: -0.1})
 
 
 def test_augmented_noise_draws_one_seeded_sigma_per_frame_and_stays_in_uint8():
