@@ -132,6 +132,19 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(
                 resume=True)
 
 
+def test_an_end_to_end_checkpoint_from_before_its_dropout_setting_resumes_only_at_the_models_rate(frames, tiny_config,
+                                                                                                   tmp_path):
+    """Until 2026-11-28 the end-to-end phase trained at the model's dropout (0.1); the default is now none."""
+    then = TrainConfig(max_epochs=2, batch_size=8, end_to_end_dropout=None)
+    checkpoint = tmp_path / "checkpoint.pt"
+    checkpoint_as_written_then(frames, tiny_config, then, checkpoint, lambda saved: saved.pop("end_to_end_dropout"))
+    with pytest.raises(ValueError, match=r"end_to_end_dropout None \(now 0.0\)"):
+        trained(frames, tiny_config, dataclasses.replace(then, end_to_end_dropout=0.0), checkpoint_path=checkpoint,
+                resume=True)
+    _, result = trained(frames, tiny_config, then, checkpoint_path=checkpoint, resume=True)
+    assert result.epochs_run == 2
+
+
 def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_trained(frames, tiny_config, tmp_path):
     """Head settings whose default changed count as what training did before they existed: no copy, the model's
     dropout. A checkpoint of the time when --head-noise-sigma replaced the frames cannot be resumed at all."""
