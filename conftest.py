@@ -30,3 +30,21 @@ def reference_sensor_description(monkeypatch):
     """Every test runs on the installed reference description, whatever TACTILE_SENSOR_CONFIG the shell gives: tests
     name its cameras, grid and frame rate (with skin_3x3's several failed; review). Tests of the variable set it."""
     monkeypatch.delenv("TACTILE_SENSOR_CONFIG", raising=False)
+
+
+@pytest.fixture(scope="session")
+def torch_default_threads() -> int:
+    """torch's thread count before any test changed it (its default: the machine's cores)."""
+    import torch
+
+    return torch.get_num_threads()
+
+
+@pytest.fixture(autouse=True)
+def torch_threads_restored(torch_default_threads):
+    """A fusion node or a torch predictor built in a test sets torch's thread count for the whole process (the node's
+    `threads`, 1 by default): put back after each test, so that later tests do not run on one core (review)."""
+    yield
+    import torch
+
+    torch.set_num_threads(torch_default_threads)

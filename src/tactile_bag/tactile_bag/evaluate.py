@@ -327,10 +327,13 @@ def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePr
                 off_reference.append(live.match.off.copy())
     reference = live.reference
     if reference.images is None:
-        raise BagError(f"bag {path}: only {reference.frames_taken} complete bundle(s) of {bundles}, the reference "
-                       f"frames need {reference_bundles}; record longer at rest first, or lower --reference-bundles "
-                       f"(the reference does without a camera that has no usable image after {reference.patience} "
-                       "bundles)")
+        # Which bundles could not be used says more than the remedy for a short recording: a bag of another sensor has
+        # no usable bundle at all (review).
+        skipped = "".join(f"; {count} {reason}" for reason, count in reader.skipped.items())
+        raise BagError(f"bag {path}: only {reference.frames_taken} complete bundle(s) of {bundles}{skipped}, the "
+                       f"reference frames need {reference_bundles}; record longer at rest first, or lower "
+                       f"--reference-bundles (the reference does without a camera that has no usable image after "
+                       f"{reference.patience} bundles)")
     if not after_reference:
         raise BagError(f"bag {path}: the reference frames took every complete bundle of its {bundles}, none is left to "
                        "estimate; record longer, or lower --reference-bundles")

@@ -154,6 +154,22 @@ def test_a_recorded_bundle_stamped_before_1970_is_skipped_as_the_fusion_node_ski
     assert len(stray.stamps_s) == len(clean.stamps_s) - 1 and stray.stamps_s.min() > 0
 
 
+def test_a_bag_of_another_sensors_bundles_is_refused_naming_them(tmp_path, write_bag, sensor, sim_frames, predictor):
+    """Every recorded bundle holds a camera this sensor has not: none is usable, and the refusal said only "record
+    longer at rest" (review)."""
+    write_bag(tmp_path / "clean", sensor, sim_frames, images=False, bundles=True)
+    with BagReader(tmp_path / "clean") as clean, BagWriter(tmp_path / "bag") as bag:
+        for topic, _, time_ns, raw in clean.messages(list(clean.topics)):
+            if topic == "/tactile/image_bundle":
+                msg = evaluate.deserialize(raw, ImageBundle, topic, time_ns)
+                msg.camera_ids = [*msg.camera_ids[:3], "cam4"]
+                raw = serialize_message(msg)
+            bag.write(topic, clean.topics[topic], time_ns, raw)
+    with pytest.raises(BagError, match=f"only 0 complete bundle\\(s\\) of {len(sim_frames)}; {len(sim_frames)} "
+                                       "bundle of another sensor, the reference frames need"):
+        evaluate_bag(tmp_path / "bag", sensor, predictor, source="bundles")
+
+
 def test_a_dropped_camera_degrades_recorded_bundles(tmp_path, write_bag, sensor, sim_frames, predictor):
     frames = [dataclasses.replace(f, camera_ok=np.array([c != "cam1" or f.index % 5 for c in sensor.camera_ids]))
               for f in sim_frames]

@@ -24,8 +24,8 @@ Lost bundles: the bundle node numbers its bundles; a jump in the numbers is logg
 Degraded input: a camera missing from a bundle, or whose image is unreadable, is marked not ok for the predictor
 (which shows the model that camera at rest, tactile_fusion.camera_out: "no contact"), and the estimate lists it in
 `missing_camera_ids`. Every problem of a bundle is logged in one line (every 5 s at most, with the count of such
-bundles since start), so that each broken camera is named; a malformed bundle (not one image per camera id) is
-skipped.
+bundles since start), so that each broken camera is named; a malformed bundle (not one image per camera id) and a
+bundle of another sensor (a camera the sensor description does not name) are skipped (images.bundle_problem).
 """
 
 from __future__ import annotations

@@ -548,8 +548,8 @@ def _head_phase(model: ForceFusionNet, cached_train: CachedSource, cached_val: C
 @contextmanager
 def phase_dropout(model: ForceFusionNet, rate: float | None) -> Iterator[None]:
     """The fully connected layers at `rate` (None: the model's own) for one phase (end to end: end_to_end_dropout;
-    on cached features, the head phase and recalibration: head_dropout); the model's own rate restored afterwards,
-    also on an exception."""
+    on cached features, the head phase and recalibration: head_dropout); the rate they had before restored
+    afterwards, also on an exception."""
     model_dropout = model.cnn.set_dropout(model.config.dropout if rate is None else rate)
     try:
         yield
@@ -562,6 +562,14 @@ def phase_dropout(model: ForceFusionNet, rate: float | None) -> Iterator[None]:
 SETTINGS_BEFORE_THEY_EXISTED = {"end_to_end_dropout": None, "head_dropout": None, "head_noise_sigma": 0.0,
                                 "head_blur_fraction": 0.0, "head_misalign_fraction": 0.0, "head_misalign_shift_px": 2.0,
                                 "head_misalign_rotation_deg": 2.0, "head_cycles": 1, "head_precision": "fp32"}
+
+
+def _model_rates(settings: dict, model: ForceFusionNet) -> dict:
+    """`settings` with a dropout of None (the model's own rate) as that rate: a checkpoint written before
+    --end-to-end-dropout existed trained at the model's 0.1, and is resumed by naming it (review: None, which it was
+    compared with, cannot be given on the command line)."""
+    return {**settings, **{k: model.config.dropout for k in ("end_to_end_dropout", "head_dropout")
+                           if settings.get(k) is None}}
 
 
 def data_identity(train: FrameSet, val: FrameSet, extra_targets: np.ndarray | None = None) -> dict:
@@ -624,7 +632,8 @@ def _load_checkpoint(path: Path, model: ForceFusionNet, optimizer, scheduler, co
     if "head_noise_sigma" in compared and "head_blur_fraction" not in saved and saved.get("head_noise_sigma", 0.0) > 0:
         raise CheckpointMismatchError(f"checkpoint {path} was written when --head-noise-sigma replaced the training "
                                       "frames (it now adds an imperfect copy): delete the checkpoint")
-    then = {**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved}
+    then = _model_rates({**asdict(TrainConfig()), **SETTINGS_BEFORE_THEY_EXISTED, **saved}, model)
+    now = _model_rates(now, model)
     differences = [(name, then[k], now[k]) for k, name in compared.items() if then[k] != now[k]]
     if differences:
         raise SettingsMismatchError(path, differences)

@@ -7,7 +7,6 @@ can learn the mapping in a few epochs. Tests that need the real sensor use the s
 
 import numpy as np
 import pytest
-import torch
 
 from tactile_fusion.data import FrameSet
 from tactile_fusion.model import ForceFusionNet, ModelConfig
@@ -31,15 +30,6 @@ def synthetic_frames(n: int, seed: int = 0) -> FrameSet:
     images = np.clip(images, 0, 255).astype(np.uint8)
     return FrameSet(images=images, bin_forces_n=forces, reference=reference,
                     camera_ok=np.ones((n, len(CAMERAS)), dtype=bool), camera_ids=CAMERAS, scene="synthetic", seed=seed)
-
-
-@pytest.fixture(autouse=True)
-def torch_threads_restored():
-    """A fusion node or a torch predictor built in a test sets torch's thread count for the whole process (the node's
-    `threads`, 1 by default): put back after each test, so that later tests train on every core."""
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture

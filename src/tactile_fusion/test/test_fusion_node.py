@@ -152,7 +152,7 @@ def malformed(msg: ImageBundle) -> ImageBundle:
 
 
 def of_another_sensor(msg: ImageBundle) -> ImageBundle:
-    """As a bundle node run with another sensor description bundles: its cam3 is a camera this sensor has not (a
+    """As a bundle node run with another sensor description bundles: its cam4 is a camera this sensor has not (a
     3 x 3 skin's cam0 to cam8: the estimate of the other cameras went out as complete; review)."""
     msg.camera_ids = ["cam0", "cam1", "cam2", "cam4"]
     return msg

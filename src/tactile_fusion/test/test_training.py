@@ -134,15 +134,20 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_with_its_default(
 
 def test_an_end_to_end_checkpoint_from_before_its_dropout_setting_resumes_only_at_the_models_rate(frames, tiny_config,
                                                                                                    tmp_path):
-    """Until 2026-11-28 the end-to-end phase trained at the model's dropout (0.1); the default is now none."""
-    then = TrainConfig(max_epochs=2, batch_size=8, end_to_end_dropout=None)
+    """Until 2026-11-28 the end-to-end phase trained at the model's dropout (0.1); the default is now none. The model's
+    rate, named as on the command line (--end-to-end-dropout 0.1), resumes it; None, which the command line cannot
+    give, was the only value accepted at first (review)."""
+    then = TrainConfig(max_epochs=3, batch_size=8, end_to_end_dropout=None)
     checkpoint = tmp_path / "checkpoint.pt"
     checkpoint_as_written_then(frames, tiny_config, then, checkpoint, lambda saved: saved.pop("end_to_end_dropout"))
-    with pytest.raises(ValueError, match=r"end_to_end_dropout None \(now 0.0\)"):
+    with pytest.raises(ValueError, match=r"end_to_end_dropout 0.1 \(now 0.0\)"):
         trained(frames, tiny_config, dataclasses.replace(then, end_to_end_dropout=0.0), checkpoint_path=checkpoint,
                 resume=True)
-    _, result = trained(frames, tiny_config, then, checkpoint_path=checkpoint, resume=True)
-    assert result.epochs_run == 2
+    _, named = trained(frames, tiny_config, dataclasses.replace(then, end_to_end_dropout=tiny_config.dropout),
+                       checkpoint_path=checkpoint, resume=True)
+    checkpoint_as_written_then(frames, tiny_config, then, checkpoint, lambda saved: saved.pop("end_to_end_dropout"))
+    _, as_none = trained(frames, tiny_config, then, checkpoint_path=checkpoint, resume=True)
+    assert named.epochs_run == as_none.epochs_run == 3
 
 
 def test_a_checkpoint_from_before_the_head_settings_resumes_only_as_it_was_trained(frames, tiny_config, tmp_path):
