@@ -57,3 +57,16 @@ def test_another_clock_keeps_each_cameras_age():
     assert arrivals.live(5000.0, TIMEOUT_S) == ("cam0", "cam1")  # ages 0 and 0.3 s at the old clock's 100.2 s
     assert arrivals.live(5000.2, TIMEOUT_S) == ("cam0", "cam1")
     assert arrivals.live(5000.3, TIMEOUT_S) == ()  # and they age on the new clock
+
+
+def test_another_clock_that_does_not_run_yet_keeps_each_cameras_age_until_it_does():
+    """use_sim_time set while the bundle node runs, before any /clock: the simulated clock reads 0 for a while, then
+    starts at a bag's 1000 s, after the steady clock's 50 s since boot."""
+    arrivals = CameraArrivals(CAMERAS)
+    arrivals.arrived(["cam2"], 49.9)
+    arrivals.arrived(["cam0", "cam1"], 50.2)
+    arrivals.clock_changed()
+    assert arrivals.live(0.0, TIMEOUT_S) == ("cam0", "cam1")  # as at the old clock's latest reading
+    arrivals.arrived(["cam2"], 0.0)  # images while the new clock does not run date from its first reading
+    assert arrivals.live(1000.0, TIMEOUT_S) == CAMERAS
+    assert arrivals.live(1000.26, TIMEOUT_S) == ()  # cam0 and cam1 were 0 s old at the change, cam2 from 1000 s
