@@ -33,11 +33,23 @@ def press_frames():
 
 
 @pytest.fixture
-def fusion(monkeypatch):
-    """A FusionNode with the shipped model and a reference of 2 bundles, and the list its estimates arrive in."""
+def init_ros(monkeypatch):
+    """init_ros(*parameters): rclpy initialised with these `name:=value` parameters, in a DDS domain of this test
+    process's own on loopback; shut down after the test."""
     monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 60) % 80))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init(args=["--ros-args", "-p", "reference_bundles:=2", "-p", "publish_markers:=false"])
+
+    def init(*parameters: str) -> None:
+        rclpy.init(args=["--ros-args", *(arg for parameter in parameters for arg in ("-p", parameter))])
+
+    yield init
+    rclpy.try_shutdown()
+
+
+@pytest.fixture
+def fusion(init_ros):
+    """A FusionNode with the shipped model and a reference of 2 bundles, and the list its estimates arrive in."""
+    init_ros("reference_bundles:=2", "publish_markers:=false")
     node = FusionNode()
     estimates: list[ForceDistribution] = []
     node.create_subscription(ForceDistribution, ESTIMATE_TOPIC, estimates.append, 10)
@@ -46,7 +58,6 @@ def fusion(monkeypatch):
         yield node, estimates
     finally:
         node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def bundle(frame, sequence: int, cameras=("cam0", "cam1", "cam2", "cam3")) -> ImageBundle:
@@ -229,47 +240,32 @@ def test_the_capture_reference_service_takes_the_reference_again_from_the_next_b
     assert pressed > 0.1 and np.asarray(estimates[1].forces_n).reshape(-1, 3)[:, 2].sum() < 0.01 * pressed
 
 
-def test_the_nodes_torch_work_runs_on_its_threads(monkeypatch):
+def test_the_nodes_torch_work_runs_on_its_threads(init_ros):
     """The reference check runs in torch whatever the backend; with ONNX Runtime torch kept its default of every core,
     and beside other busy processes a check took 128 ms instead of 0.8 ms (review)."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 60) % 80))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     torch.set_num_threads(2)
-    rclpy.init(args=["--ros-args", "-p", "threads:=1", "-p", "backend:=onnxruntime"])
-    try:
-        node = FusionNode()
-        assert torch.get_num_threads() == 1
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+    init_ros("threads:=1", "backend:=onnxruntime")
+    node = FusionNode()
+    assert torch.get_num_threads() == 1
+    node.destroy_node()
 
 
-def test_markers_rate_hz_is_refused_without_the_remedy_already_taken(monkeypatch):
+def test_markers_rate_hz_is_refused_without_the_remedy_already_taken(init_ros):
     """With publish_markers false the refusal still said "to publish no markers, set publish_markers false" (review)."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 60) % 80))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init(args=["--ros-args", "-p", "publish_markers:=false", "-p", "markers_rate_hz:=0"])
-    try:
-        with pytest.raises(ValueError, match="parameter markers_rate_hz must be a") as refusal:
-            FusionNode()
-        assert "set publish_markers false" not in str(refusal.value)
-    finally:
-        rclpy.try_shutdown()
+    init_ros("publish_markers:=false", "markers_rate_hz:=0")
+    with pytest.raises(ValueError, match="parameter markers_rate_hz must be a") as refusal:
+        FusionNode()
+    assert "set publish_markers false" not in str(refusal.value)
 
 
 @pytest.mark.parametrize(("value", "accepted"), [("5", 5.0), ("2.5", 2.5), ("inf", None), ("0", None),
                                                  ("nan", None), ("fast", None)])
-def test_markers_rate_hz_takes_integers_and_refuses_what_is_not_a_finite_positive_rate(monkeypatch, value, accepted):
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(20 + (os.getpid() + 60) % 80))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init(args=["--ros-args", "-p", f"markers_rate_hz:={value}"])
-    try:
-        if accepted is None:
-            with pytest.raises(ValueError, match="parameter markers_rate_hz must be a"):
-                FusionNode()
-        else:
-            node = FusionNode()
-            assert node.markers_period_s == pytest.approx(1.0 / accepted)
-            node.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+def test_markers_rate_hz_takes_integers_and_refuses_what_is_not_a_finite_positive_rate(init_ros, value, accepted):
+    init_ros(f"markers_rate_hz:={value}")
+    if accepted is None:
+        with pytest.raises(ValueError, match="parameter markers_rate_hz must be a"):
+            FusionNode()
+    else:
+        node = FusionNode()
+        assert node.markers_period_s == pytest.approx(1.0 / accepted)
+        node.destroy_node()
