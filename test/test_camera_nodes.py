@@ -18,7 +18,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from tactile_bringup.graph import NodeSpec
-from tactile_bringup.processes import spin_until, start_node, stop_nodes
+from tactile_bringup.processes import spin_until, start_node, stop_nodes, wait_for_log
 from tactile_camera_driver.camera_node import CameraNode
 from tactile_camera_driver.sim_camera_node import SimCameraNode
 from tactile_conversions.images import mono8_to_msg
@@ -237,13 +237,6 @@ def test_the_simulated_cameras_refuse_what_only_the_simulator_finds_in_one_line(
     last = stderr.strip().splitlines()[-1]
     assert node.returncode == 2 and last.startswith("tactile_sim_cameras: " + line), stderr
     assert "Traceback" not in stderr
-
-
-def wait_for_log(path, text: str, timeout_s: float) -> str:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end and text not in path.read_text():
-        time.sleep(0.05)
-    return path.read_text()
 
 
 def test_the_bundle_node_reports_the_images_it_dropped_when_it_stops(ros_domain, capfd):

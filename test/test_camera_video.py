@@ -10,7 +10,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from tactile_bringup.graph import NodeSpec
-from tactile_bringup.processes import spin_until, start_node, stop_nodes
+from tactile_bringup.processes import spin_until, start_node, stop_nodes, wait_for_log
 from tactile_camera_driver.camera_node import is_video_file, missing_file
 from tactile_conversions.images import msg_to_array
 from tactile_description import default_sensor_path, load_sensor
@@ -390,9 +390,7 @@ def test_ffmpegs_own_messages_are_left_to_fatal_ones_unless_the_user_set_a_level
     process = start_node(camera_spec("not_a_video_camera", "cam0", not_a_video, reopen_period_s=0.1), tmp_path)
     log = tmp_path / "not_a_video_camera.log"
     try:
-        end = time.monotonic() + 30.0
-        while time.monotonic() < end and "cannot open camera source" not in log.read_text():
-            time.sleep(0.05)
+        wait_for_log(log, "cannot open camera source", timeout_s=30.0)
         time.sleep(0.5)  # about five retries more
         running = process.poll() is None
     finally:

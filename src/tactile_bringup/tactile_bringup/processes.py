@@ -80,6 +80,14 @@ def started(spec: NodeSpec, log_dir: Path) -> subprocess.Popen:
         raise GraphStartError(f"node {spec.name} cannot be started: {exc.strerror or exc}: {exc.filename}") from exc
 
 
+def wait_for_log(path: Path, text: str, timeout_s: float) -> str:
+    """A node's log file (where start_node sends its output) once it holds `text`, or after `timeout_s`."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and text not in path.read_text():
+        time.sleep(0.05)
+    return path.read_text()
+
+
 def log_tail(log_dir: Path, spec: NodeSpec, lines: int = 1) -> str:
     """The last non-empty lines of a node's log (where start_node sent its output), "" without any."""
     try:
