@@ -138,17 +138,25 @@ def test_bundles_missing_from_a_recording_are_counted(tmp_path, write_bag, senso
     assert summary["skipped"] == {"bundles missing from the recording (gaps in their sequence numbers)": 4}
 
 
-def test_a_recorded_bundle_stamped_before_1970_is_skipped_as_the_fusion_node_skips_it(tmp_path, write_bag, sensor,
-                                                                                        sim_frames, predictor):
+def bundles_changed(tmp_path, write_bag, sensor, sim_frames, change) -> None:
+    """tmp_path/clean: the frames recorded as bundles; tmp_path/bag: the same with change(bundle) applied to each."""
     write_bag(tmp_path / "clean", sensor, sim_frames, images=False, bundles=True)
     with BagReader(tmp_path / "clean") as clean, BagWriter(tmp_path / "bag") as bag:
         for topic, _, time_ns, raw in clean.messages(list(clean.topics)):
             if topic == "/tactile/image_bundle":
                 msg = evaluate.deserialize(raw, ImageBundle, topic, time_ns)
-                if msg.sequence == 30:
-                    msg.header.stamp = Time(sec=-5)
-                    raw = serialize_message(msg)
+                change(msg)
+                raw = serialize_message(msg)
             bag.write(topic, clean.topics[topic], time_ns, raw)
+
+
+def test_a_recorded_bundle_stamped_before_1970_is_skipped_as_the_fusion_node_skips_it(tmp_path, write_bag, sensor,
+                                                                                        sim_frames, predictor):
+    def stamped_before_1970(bundle):
+        if bundle.sequence == 30:
+            bundle.header.stamp = Time(sec=-5)
+
+    bundles_changed(tmp_path, write_bag, sensor, sim_frames, stamped_before_1970)
     clean, stray = (evaluate_bag(tmp_path / name, sensor, predictor, source="bundles") for name in ("clean", "bag"))
     assert stray.skipped == {"bundle stamped outside [0, 2**31) s": 1}
     assert len(stray.stamps_s) == len(clean.stamps_s) - 1 and stray.stamps_s.min() > 0
@@ -157,14 +165,10 @@ def test_a_recorded_bundle_stamped_before_1970_is_skipped_as_the_fusion_node_ski
 def test_a_bag_of_another_sensors_bundles_is_refused_naming_them(tmp_path, write_bag, sensor, sim_frames, predictor):
     """Every recorded bundle holds a camera this sensor has not: none is usable, and the refusal said only "record
     longer at rest" (review)."""
-    write_bag(tmp_path / "clean", sensor, sim_frames, images=False, bundles=True)
-    with BagReader(tmp_path / "clean") as clean, BagWriter(tmp_path / "bag") as bag:
-        for topic, _, time_ns, raw in clean.messages(list(clean.topics)):
-            if topic == "/tactile/image_bundle":
-                msg = evaluate.deserialize(raw, ImageBundle, topic, time_ns)
-                msg.camera_ids = [*msg.camera_ids[:3], "cam4"]
-                raw = serialize_message(msg)
-            bag.write(topic, clean.topics[topic], time_ns, raw)
+    def of_another_sensor(bundle):
+        bundle.camera_ids = [*bundle.camera_ids[:3], "cam4"]
+
+    bundles_changed(tmp_path, write_bag, sensor, sim_frames, of_another_sensor)
     with pytest.raises(BagError, match=f"only 0 complete bundle\\(s\\) of {len(sim_frames)}; {len(sim_frames)} "
                                        "bundle of another sensor, the reference frames need"):
         evaluate_bag(tmp_path / "bag", sensor, predictor, source="bundles")
