@@ -87,13 +87,18 @@ def test_the_mismatch_level_is_the_75th_percentile_of_the_difference_in_grey_lev
     np.testing.assert_allclose(mismatch_levels(images, reference), [5.0, 0.0, 100 - 100 / 1.1], atol=1e-4)
 
 
+def frames_at_rest(count: int) -> list[np.ndarray]:
+    """`count` frames of two 32 x 32 cameras at rest: one scene with sensor noise of sigma 2 grey levels."""
+    rng = np.random.default_rng(0)
+    scene = rng.uniform(60, 200, (2, 32, 32))
+    return [np.rint(scene + rng.normal(0, 2.0, scene.shape)).astype(np.uint8) for _ in range(count)]
+
+
 def test_the_reference_knows_how_far_its_own_frames_lie_from_it():
     """The level of sensor noise (sigma 2 grey levels) at the 75th percentile, 1.15 sigma, a little less because
     each frame is part of the mean."""
-    rng = np.random.default_rng(0)
-    scene = rng.uniform(60, 200, (2, 32, 32))
     reference = ReferenceFrames(2, (32, 32), count=10)
-    frames = [np.rint(scene + rng.normal(0, 2.0, scene.shape)).astype(np.uint8) for _ in range(10)]
+    frames = frames_at_rest(10)
     assert [reference.add(f, np.array([True, True])) for f in frames] == [False] * 9 + [True]
     assert reference.rest_levels.shape == (2,) and np.all((reference.rest_levels > 1.9) & (reference.rest_levels < 2.5))
     np.testing.assert_array_equal(reference.rest_levels,
@@ -114,9 +119,7 @@ def test_the_rest_levels_of_a_long_reference_come_from_a_few_of_its_frames(monke
     checked = []
     monkeypatch.setattr(live_estimation, "mismatch_levels",
                         lambda images, ref: checked.append(images) or mismatch_levels(images, ref))
-    rng = np.random.default_rng(0)
-    scene = rng.uniform(60, 200, (2, 32, 32))
-    frames = [np.rint(scene + rng.normal(0, 2.0, scene.shape)).astype(np.uint8) for _ in range(MAX_REFERENCE_BUNDLES)]
+    frames = frames_at_rest(MAX_REFERENCE_BUNDLES)
     reference = ReferenceFrames(2, (32, 32), count=MAX_REFERENCE_BUNDLES)
     assert [reference.add(f, np.array([True, True])) for f in frames][-1]
     assert len(checked) == REST_LEVEL_FRAMES
