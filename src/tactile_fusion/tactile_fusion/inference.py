@@ -224,18 +224,15 @@ def _graph_session(path: Path, threads: int | None):
                              ) from exc
 
 
-def onnx_session(graph: str | Path | bytes, threads: int | None, spinning: bool = True):
+def onnx_session(graph: str | Path | bytes, threads: int | None):
     """An ONNX Runtime CPU session of a graph file or serialised graph, fully optimised, with `threads` intra-op
-    threads (None: all cores). spinning False: its threads sleep between runs instead of waiting busily for the
-    next, which would take the cores from the Python and torch work that a caller does in between."""
+    threads (None: all cores)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads or 0
     options.inter_op_num_threads = 1
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    if not spinning:
-        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     source = graph if isinstance(graph, bytes) else str(graph)
     return ort.InferenceSession(source, options, providers=["CPUExecutionProvider"])
 

@@ -14,7 +14,8 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,9 +32,10 @@ from tactile_sim.effects import defocus, misalign
 #: Where a CachedSource cuts the network: after the conv trunk, or after the first fully connected layer.
 CUTS = ("trunk", "hidden")
 #: Frames per call when a CachedSource fills its cache. Small batches keep the activations in the CPU's caches: ONNX
-#: Runtime ran the conv trunk at 0.60 ms per frame with 4 frames per call, 0.74 with 16 and 0.84 with 64 (two threads;
-#: the same features to the bit for any batch).
-FRONT_BATCH_FRAMES = 4
+#: Runtime ran the conv trunk at 0.60 ms per frame with 4 frames per call, 0.74 with 16 and 0.84 with 64 (two threads,
+#: its threads sleeping between calls; the same features to the bit for any batch). With its threads waiting busily
+#: instead (see `CachedSource._front`), 2 frames per call ran at 0.38 ms, 1 at 0.42 and 4 at 0.52.
+FRONT_BATCH_FRAMES = 2
 
 
 class ImageSource:
@@ -160,20 +162,27 @@ class CachedSource:
                out: torch.Tensor | None = None) -> torch.Tensor:
         """(N, C, features at the cut) of `frames` through ONNX Runtime, each chunk of images first passed through
         change(images, first frame index) if given; written into `out` if given (a float32 tensor of that shape),
-        else into a new tensor."""
+        else into a new tensor.
+
+        Why torch runs on one thread meanwhile: its pool's threads wait busily for work after each parallel call (the
+        imperfect copy's noise), and took a core from ONNX Runtime's, whose own busy wait between calls then made
+        things worse. With torch on one thread the session's threads may wait busily and are faster for it: the copy
+        took 0.73 ms per frame (0.31 noise and changes, 0.42 trunk) against 1.38 with torch's two threads and the
+        session's sleeping, the frames without a copy 0.38 against 0.63 (2026-11-28)."""
         if out is None:
             out = _features_at_cut(model, frames, cut, len(frames))
         reference = np.ascontiguousarray(frames.reference)
         front = FrontPart(model, cut).eval()
         example = (torch.from_numpy(np.asarray(frames.images[:1])), torch.from_numpy(reference))
-        session = onnx_session(onnx_bytes(front, example, "features"), torch.get_num_threads(), spinning=False)
-        for start in range(0, len(frames), FRONT_BATCH_FRAMES):
-            images = np.asarray(frames.images[start:start + FRONT_BATCH_FRAMES])
-            if change is not None:
-                images = change(images, start)
-            images = with_cameras_at_rest(images, reference, frames.camera_ok[start:start + FRONT_BATCH_FRAMES])
-            features = session.run(None, {"images": np.ascontiguousarray(images), "reference": reference})[0]
-            out[start:start + len(features)] = torch.from_numpy(features)
+        session = onnx_session(onnx_bytes(front, example, "features"), torch.get_num_threads())
+        with torch_threads(1):
+            for start in range(0, len(frames), FRONT_BATCH_FRAMES):
+                images = np.asarray(frames.images[start:start + FRONT_BATCH_FRAMES])
+                if change is not None:
+                    images = change(images, start)
+                images = with_cameras_at_rest(images, reference, frames.camera_ok[start:start + FRONT_BATCH_FRAMES])
+                features = session.run(None, {"images": np.ascontiguousarray(images), "reference": reference})[0]
+                out[start:start + len(features)] = torch.from_numpy(features)
         return out
 
     def __len__(self) -> int:
@@ -196,6 +205,17 @@ class CachedSource:
 
     def target(self, indices: np.ndarray) -> torch.Tensor:
         return self.forces_n(indices) / self.force_scale_n
+
+
+@contextmanager
+def torch_threads(threads: int) -> Iterator[None]:
+    """torch's intra-op thread count set to `threads` inside the block, restored after it."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _features_at_cut(model: ForceFusionNet, frames: FrameSet, cut: str, samples: int) -> torch.Tensor:
