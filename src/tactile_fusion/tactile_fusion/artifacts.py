@@ -243,7 +243,7 @@ def model_threshold(description: dict) -> float | None:
 
 
 def threshold_text(threshold_n: float) -> str:
-    """An Fz threshold as the command line and the nodes print it ("3.49 mN")."""
+    """An Fz threshold as the command line and the nodes print it ("3.03 mN")."""
     return f"{1e3 * threshold_n:.3g} mN"
 
 

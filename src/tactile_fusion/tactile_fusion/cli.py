@@ -56,7 +56,7 @@ from tactile_fusion.artifacts import (
     sensor_changes_warning,
     threshold_text,
 )
-from tactile_fusion.data import DatasetMismatchError, FrameDataError, load_dataset_frames
+from tactile_fusion.data import DEFAULT_EXTRA_DRAWS, DatasetMismatchError, FrameDataError, load_dataset_frames
 from tactile_fusion.inference import BACKENDS, MAX_THREADS, PRECISIONS, InputError, check_backend, load_predictor
 from tactile_fusion.metrics import (
     CONTACT_LEVEL_N,
@@ -500,7 +500,7 @@ def _training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--head-extra-draws", type=whole_number_argument(0, "draws"),
                         help="the head phase and the least-squares fits also learn from this many further draws of "
                         "the scene (its presses drawn again from seed + 1, ...: other positions, depths and noise; "
-                        "default 2 for a scene, 0 for a dataset, which cannot be drawn again)")
+                        f"default {DEFAULT_EXTRA_DRAWS} for a scene, 0 for a dataset, which cannot be drawn again)")
     parser.add_argument("--head-cycles", type=int, default=train.head_cycles,
                         help="run the head phase and the least-squares fit this many times, each from the one before "
                         "with a new imperfect copy (default %(default)s, see docs/learning.md)")

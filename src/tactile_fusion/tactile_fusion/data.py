@@ -225,6 +225,8 @@ def _keep(frames: FrameSet, slot: int, frame) -> None:
     frames.camera_ok[slot] = frame.camera_ok
 
 
+#: Further draws of a training scene that the head phase learns from by default (SceneDraws; none for a dataset).
+DEFAULT_EXTRA_DRAWS = 3
 #: Frames per chunk of a further draw of a scene: one chunk of images is held at a time (64 MB with four cameras).
 DRAW_CHUNK_FRAMES = 1024
 

@@ -22,8 +22,8 @@ from tactile_description import FORCE_COMPONENTS
 from tactile_fusion.least_squares import fit_fusion_under_threshold
 from tactile_fusion.model import ForceFusionNet
 
-#: Iterations of the fusion layer's refit for the thresholded output (45 s for the default scene and its two further
-#: draws on 2026-11-27). Measured on the
+#: Iterations of the fusion layer's refit for the thresholded output (64 s for the default scene and its three further
+#: draws on 2026-11-28). Measured on the
 #: features of the network shipped on 2026-11-23, of the training split alone (docs/learning.md): 12 iterations took
 #: the test split from 2.111 to 2.061 mN per bin, each later one gaining less than the one before; in `make model` of
 #: that day, 10 over the training split and its further draw reached 2.021.

@@ -41,7 +41,7 @@ def camera_features(model: ForceFusionNet, source, batch_size: int = 256, dtype:
     is for the sums of the fit. With `ones_column` the features get a last column of ones: the fit's design matrix.
 
     Both are written batch by batch into tensors of their final size, never held as batches beside a whole: for the
-    default scene's 124740 frames (the training split and two further draws) the float64 features are 1.2 GB.
+    default scene's 170940 frames (the training split and three further draws) the float64 features are 1.6 GB.
     """
     if not len(source):
         raise ValueError("camera_features: no frames to compute features of")
@@ -122,8 +122,8 @@ def fit_fusion_under_threshold(model: ForceFusionNet, train_source, ridge: float
     fit_threshold_and_fusion`). Every iteration solves with the same matrix (one Cholesky factor), so it costs two
     products of the features with the weights. Fx and Fy keep their plain targets.
 
-    The features are kept in float32 and taken to float64 a chunk of frames at a time: for the default scene's 124740
-    frames a float64 copy of them, their targets and the fitted values would add about 5 GB to training's peak.
+    The features are kept in float32 and taken to float64 a chunk of frames at a time: for the default scene's 170940
+    frames a float64 copy of them, their targets and the fitted values would add about 7 GB to training's peak.
 
     Returns False, the layer unchanged, if the ridge leaves the features' normal matrix not positive definite
     (numerically singular); True when refitted.

@@ -30,6 +30,7 @@ from tactile_fusion.artifacts import (
     write_json,
 )
 from tactile_fusion.data import (
+    DEFAULT_EXTRA_DRAWS,
     DatasetMismatchError,
     FrameDataError,
     FrameSet,
@@ -54,8 +55,6 @@ from tactile_fusion.training import TrainConfig, TrainResult, build_model, parse
 from tactile_sim import DatasetError, Scene, SceneError, load_scene
 
 DEFAULT_SCENE = "paper_grid"
-#: Further draws of a training scene that the head phase learns from by default (SceneDraws; none for a dataset).
-DEFAULT_EXTRA_DRAWS = 2
 #: Scenes the training never sees (config/scenes): `tactile-fusion eval --hard-cases` reports each.
 HARD_CASE_SCENES = ("edge_corner", "multi_contact", "shear", "effects")
 CHECKPOINTS = "checkpoint_*.pt"
@@ -94,8 +93,9 @@ def training_splits(sensor: SensorDescription, scene_name: str | None, dataset: 
 def further_draws(sensor: SensorDescription, scene_name: str | None, dataset: str | Path | None, frames: int | None,
                   draws: int | None, progress: bool) -> SceneDraws:
     """The further draws of the training scene that the head phase learns from besides the training split
-    (`--head-extra-draws`), of its first `frames` frames when given. None: one draw for a scene, none for a dataset,
-    which cannot be drawn again (asking for draws of a dataset is an error; SceneDraws refuses a negative count)."""
+    (`--head-extra-draws`), of its first `frames` frames when given. None: DEFAULT_EXTRA_DRAWS for a scene, none for a
+    dataset, which cannot be drawn again (asking for draws of a dataset is an error; SceneDraws refuses a negative
+    count)."""
     if dataset is not None:
         if draws:
             raise ValueError(f"--head-extra-draws {draws}: a dataset cannot be drawn again; further draws need a "

@@ -130,8 +130,8 @@ class CachedSource:
 
     def _allocate(self, model: ForceFusionNet, frames: FrameSet, samples: int) -> None:
         """One float32 tensor for every cached sample. The imperfect copy is redrawn into its place in every head
-        cycle, so the cache is never held beside a new one (it is one of the largest arrays of training: 1.3 GB for
-        make model's 157080 samples of 4 x 512 features)."""
+        cycle, so the cache is never held beside a new one (it is one of the largest arrays of training: 1.7 GB for
+        make model's 203280 samples of 4 x 512 features)."""
         self._cache = _features_at_cut(model, frames, self.cut, samples)
 
     def redraw_copy(self, model: ForceFusionNet, frames: FrameSet, augmentation: Augmentation | None,
@@ -166,9 +166,9 @@ class CachedSource:
 
         Why torch runs on one thread meanwhile: its pool's threads wait busily for work after each parallel call (the
         imperfect copy's noise), and took a core from ONNX Runtime's, whose own busy wait between calls then made
-        things worse. With torch on one thread the session's threads may wait busily and are faster for it: the copy
-        took 0.73 ms per frame (0.31 noise and changes, 0.42 trunk) against 1.38 with torch's two threads and the
-        session's sleeping, the frames without a copy 0.38 against 0.63 (2026-11-28)."""
+        things worse. With torch on one thread the session's threads may wait busily and are faster for it: 0.81 ms
+        per frame with the imperfect copy against 1.10 with torch's two threads and the session's sleeping, 0.41
+        against 0.58 without it (2048 frames of the default scene, 2026-11-28)."""
         if out is None:
             out = _features_at_cut(model, frames, cut, len(frames))
         reference = np.ascontiguousarray(frames.reference)

@@ -60,10 +60,10 @@ def test_train_writes_a_complete_model_directory(tiny_model):
     training = json.loads((out / TRAINING_JSON).read_text())
     assert training["data"]["split_sizes"] == {"train": 42, "val": 6, "test": 12}
     assert training["train_config"]["device"] == "cpu" and training["machine"]["gpu"] is None  # the default
-    # The head also learnt from two further draws of those 60 frames (the default for a scene).
+    # The head also learnt from three further draws of those 60 frames (the default for a scene).
     seed = training["data"]["seed"]
-    assert training["data"]["head_extra"] == {"draws": 2, "scene": "paper_grid", "seeds": [seed + 1, seed + 2],
-                                              "frames": 120}
+    assert training["data"]["head_extra"] == {"draws": 3, "scene": "paper_grid",
+                                              "seeds": [seed + 1, seed + 2, seed + 3], "frames": 180}
     cycles = [""] + [f"_{c}" for c in range(2, TrainConfig().head_cycles + 1)]  # the default head cycles
     assert set(training["phases"]) == {"end_to_end", *(f"{p}{c}" for c in cycles for p in ("head", "fusion_fit")),
                                        "fz_threshold", "fusion_refit"}

@@ -164,7 +164,7 @@ def test_further_draws_are_the_scene_with_the_next_seeds_in_chunks(sensor, monke
 
 
 def test_further_draws_of_the_training_data_as_the_command_line_resolves_them(sensor):
-    assert len(further_draws(sensor, "paper_grid", None, 130, None, False)) == 2 * 130  # two draws by default
+    assert len(further_draws(sensor, "paper_grid", None, 130, None, False)) == 3 * 130  # three draws by default
     assert further_draws(sensor, None, None, None, 2, False).describe()["frames"] == 2 * 46200
     assert len(further_draws(sensor, None, "some/dataset", None, None, False)) == 0  # a dataset: none by default
     with pytest.raises(ValueError, match="a dataset cannot be drawn again"):

@@ -651,7 +651,6 @@ def test_the_head_phase_also_learns_from_an_imperfect_copy_of_the_frames(frames,
             TrainConfig(**bad)
 
 
-
 def test_filling_a_cache_keeps_the_callers_torch_threads_and_draws_the_same_copy_at_any_count(frames, tiny_config,
                                                                                              monkeypatch):
     """A cache is filled with torch on one thread (its busy-waiting pool took a core from ONNX Runtime's,
@@ -660,11 +659,17 @@ def test_filling_a_cache_keeps_the_callers_torch_threads_and_draws_the_same_copy
     train, _ = splits(frames)
     model = model_for(frames, tiny_config).eval()
     augmentation = Augmentation(noise_sigma=4.0, blur_fraction=0.5, misalign_fraction=0.5)
+    session_threads = []
+    session = sources.onnx_session
+    monkeypatch.setattr(sources, "onnx_session", lambda graph, threads: session_threads.append(threads) or
+                        session(graph, threads))
     filled = {}
     for threads in (2, 1):
         torch.set_num_threads(threads)
         filled[threads] = CachedSource(model, train, "trunk", augmentation=augmentation, seed=2).features
         assert torch.get_num_threads() == threads
+        assert set(session_threads) == {threads}  # ONNX Runtime runs at the caller's count, torch at one
+        session_threads.clear()
     assert torch.equal(filled[1], filled[2])
 
     def broken(*_):
@@ -676,6 +681,7 @@ def test_filling_a_cache_keeps_the_callers_torch_threads_and_draws_the_same_copy
     with pytest.raises(RuntimeError, match="camera imperfection failed"):
         CachedSource(model, train, "trunk", augmentation=augmentation, seed=2)
     assert torch.get_num_threads() == 2
+
 
 def test_added_camera_starts_from_the_base_prediction_and_only_the_last_layers_train(frames, tiny_config):
     base_frames = frames.select_cameras(("left",))
