@@ -167,8 +167,8 @@ class CachedSource:
         Why torch runs on one thread meanwhile: its pool's threads wait busily for work after each parallel call (the
         imperfect copy's noise), and took a core from ONNX Runtime's, whose own busy wait between calls then made
         things worse. With torch on one thread the session's threads may wait busily and are faster for it: 0.81 ms
-        per frame with the imperfect copy against 1.10 with torch's two threads and the session's sleeping, 0.41
-        against 0.58 without it (2048 frames of the default scene, 2026-11-28)."""
+        per frame with the imperfect copy against 1.10 with torch's two threads, the session's sleeping and 4 frames
+        per call, 0.41 against 0.58 without it (2048 frames of the default scene, 2026-11-28)."""
         if out is None:
             out = _features_at_cut(model, frames, cut, len(frames))
         reference = np.ascontiguousarray(frames.reference)
