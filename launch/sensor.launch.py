@@ -3,10 +3,13 @@
     ros2 launch tactile_bringup sensor.launch.py                          # simulated sensor, demo scene
     ros2 launch tactile_bringup sensor.launch.py source:=cameras camera_sources:=/path/to/sources.yaml
     ros2 launch tactile_bringup sensor.launch.py rviz:=true
+    ros2 launch tactile_bringup sensor.launch.py namespace:=left sensor_config:=/path/to/left.yaml   # one per sensor
 
 The nodes and their parameters come from tactile_bringup.graph, the same description `tactile-demo` runs
 where no launch system is installed. RViz gets the configuration of the sensor description it runs
-(tactile_bringup.rviz_config: its frame and its bins), written to $ROS_HOME/tactile_bringup/ (~/.ros/tactile_bringup/).
+(tactile_bringup.rviz_config: its frame and its bins, the topics of its namespace), written to
+$ROS_HOME/tactile_bringup/ (~/.ros/tactile_bringup/). With `namespace`, every node and topic of the graph lies under
+it (/left/tactile/force_distribution): a robot with two sensors launches this file once for each.
 """
 
 from pathlib import Path
@@ -32,6 +35,8 @@ ARGUMENTS = {
     "backend": ("onnxruntime", "inference backend: onnxruntime or torch"),
     "precision": ("fp32", "fp32, fp16 or int8 (onnxruntime)"),
     "rviz": ("false", "also start RViz with the force markers, set up for the sensor description"),
+    "namespace": ("", "ROS namespace of the graph's nodes and topics (e.g. left: /left/tactile/force_distribution); "
+                      "empty: the root namespace"),
 }
 
 
@@ -39,12 +44,13 @@ def graph_nodes(context):
     value = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     sensor = load_sensor(value["sensor_config"])
     specs = sensor_graph(sensor, value["sensor_config"], value["source"], value["scene"], value["camera_sources"],
-                         value["model_dir"], value["backend"], value["precision"])
-    nodes = [Node(package=s.package, executable=s.executable, name=s.name, parameters=[s.parameters],
-                  output="screen") for s in specs]
+                         value["model_dir"], value["backend"], value["precision"], value["namespace"])
+    nodes = [Node(package=s.package, executable=s.executable, name=s.name, namespace=s.namespace,
+                  parameters=[s.parameters], output="screen") for s in specs]
     if IfCondition(value["rviz"]).evaluate(context):
-        config = write_rviz_config(sensor)
-        nodes.append(Node(package="rviz2", executable="rviz2", arguments=["-d", str(config)]))
+        config = write_rviz_config(sensor, namespace=specs[0].namespace)
+        nodes.append(Node(package="rviz2", executable="rviz2", namespace=specs[0].namespace,
+                          arguments=["-d", str(config)]))
     return nodes
 
 

@@ -333,6 +333,38 @@ def test_the_simulated_scene_waits_for_the_nodes_of_wait_for_nodes_and_loses_non
 
 
 @pytest.mark.system
+def test_the_simulated_scene_waits_for_the_nodes_of_its_own_namespace(ros_probe, lossless_image_qos, tmp_path):
+    """Two sensors' graphs in /left and /right: the right cameras wait for the right bundle node, and the left one of
+    the same name, up first, does not start the right scene (until 2026-11-28 a node of that name in any namespace
+    counted, and the right fusion node could take a press for its reference)."""
+    frames = 40
+    scene = tmp_path / "rest.yaml"
+    scene.write_text(f"name: rest\nseed: 1\ntimeline:\n  - rest: {{frames: {frames}}}\n")
+    images = []
+    ros_probe.create_subscription(Image, "/right/tactile/cam0/image", images.append, lossless_image_qos)
+
+    def bundles(side: str) -> NodeSpec:
+        return NodeSpec("tactile_fusion", "bundle_node", "bundles", {"sensor_config": CONFIG}, f"/{side}")
+
+    processes = [start_node(bundles("left"), tmp_path / "left")]
+    right = tmp_path / "right"
+    processes.append(start_node(NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
+                                         {"sensor_config": CONFIG, "scene": str(scene), "loop": False, "rate_hz": 40,
+                                          "wait_for_nodes": "bundles"}, "/right"), right))
+    try:
+        wait_for_log(right / "sim_once.log", "waiting for nodes ['bundles'] to subscribe", timeout_s=20.0)
+        spin_until(ros_probe, lambda: False, 2.0)
+        images_before = len(images)
+        processes.append(start_node(bundles("right"), right))
+        spin_until(ros_probe, lambda: len(images) >= frames, 30.0)
+    finally:
+        codes = stop_nodes(processes)
+    log = (right / "sim_once.log").read_text()
+    assert images_before == 0 and len(images) == frames, log
+    assert codes == [0, 0, 0], log
+
+
+@pytest.mark.system
 def test_an_image_subscriber_that_came_first_does_not_start_the_scene_before_the_bundle_node(ros_probe,
                                                                                            lossless_image_qos,
                                                                                            tmp_path):

@@ -91,6 +91,37 @@ def test_demo_runs_the_whole_graph_and_tracks_the_ground_truth(ros_domain, run_g
     assert summary["rmse_total_n"][2] < 2 * shipped["rmse_total_n"][2] + 0.05, summary
 
 
+def test_two_sensors_each_in_a_namespace_of_its_own_keep_their_topics_apart(ros_probe, graph_tools, tmp_path):
+    """A robot with two sensors runs one graph per sensor, each in a namespace (`sensor.launch.py namespace:=left`,
+    here `tactile-demo --namespace`): every topic of a graph lies under its namespace and none in the root one, and
+    each graph hears only its own cameras. Until 2026-11-28 the topic names were absolute: both fusion nodes would
+    have read both sensors' bundles and published on one /tactile/force_distribution."""
+    demos = {side: graph_tools.start(["tactile-demo", "--namespace", side, "--duration", "10", "--json", "--log-dir",
+                                      str(tmp_path / side)]) for side in ("left", "right")}
+    expected = {f"/{side}/tactile/{topic}" for side in demos
+                for topic in ("cam0/image", "cam3/image", "image_bundle", "force_distribution",
+                              "ground_truth/force_distribution", "wrench", "force_markers")}
+    seen: set[str] = set()
+
+    def all_seen() -> bool:
+        seen.update(name for name, _ in ros_probe.get_topic_names_and_types() if "tactile" in name)
+        return expected <= seen
+
+    everything_seen = spin_until(ros_probe, all_seen, 60.0)
+    results = {side: graph_tools.finish(demo, 120) for side, demo in demos.items()}
+    logs = "\n".join(p.read_text() for p in tmp_path.glob("*/*.log"))
+    assert all(r.returncode == 0 for r in results.values()), [*(r.stderr for r in results.values()), logs]
+    assert everything_seen and not [name for name in seen if name.startswith("/tactile/")], sorted(seen)
+    shipped = json.loads((default_model_dir() / "metrics.json").read_text())
+    for side, result in results.items():
+        summary = json.loads(result.stdout.strip().splitlines()[-1])
+        # One sensor's estimates at its cameras' 40 Hz, each matched with its own scene's ground truth: a graph that
+        # heard the other one's bundles as well would publish about twice as often.
+        assert summary["estimates"] > 100 and summary["rate_hz"] < 44.0, (side, summary)
+        assert summary["matched_with_ground_truth"] > 100 and summary["contract_violations"] == [], (side, summary)
+        assert summary["rmse_total_n"][2] < 2 * shipped["rmse_total_n"][2] + 0.05, (side, summary)
+
+
 def test_demo_names_the_node_that_refused_its_model_and_why(ros_domain, run_graph_tool, tmp_path):
     """A fusion node that exits while the graph starts stops the demo at once, with the node's own last words."""
     demo = run_graph_tool(["tactile-demo", "--model", str(tmp_path / "no_model"), "--duration", "30", "--log-dir",

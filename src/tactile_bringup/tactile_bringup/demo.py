@@ -2,11 +2,12 @@
 
 Starts the nodes of tactile_bringup.graph as separate processes (what `ros2 launch tactile_bringup
 sensor.launch.py` starts where the launch system is installed), listens to `/tactile/force_distribution` and the
-simulator's `/tactile/ground_truth/force_distribution`, prints one line per second, stops the graph after
+simulator's `/tactile/ground_truth/force_distribution` (under `--namespace`, where the graph runs in one), prints one
+line per second, stops the graph after
 `--duration` seconds and prints a summary (`--json`: one JSON object) with every node's exit code. Exits 1 when
 the graph produced no estimate or an estimate that breaks the message contract, or a node exited before the end
-or with a non-zero code; 2, before any node starts, when the sensor or scene file is refused or the log directory
-cannot be made, and when a node exits while the graph starts. Ctrl-C and SIGTERM end the run early, with the
+or with a non-zero code; 2, before any node starts, when an option, the sensor or scene file is refused or the log
+directory cannot be made, and when a node exits while the graph starts. Ctrl-C and SIGTERM end the run early, with the
 summary.
 """
 
@@ -16,6 +17,7 @@ import json
 import statistics
 import sys
 import time
+from argparse import ArgumentTypeError
 from collections import deque
 from pathlib import Path
 
@@ -35,7 +37,14 @@ from tactile_bringup.processes import (
 from tactile_conversions.forces import components_problem, forces_from_msg
 from tactile_conversions.ros_time import time_to_seconds
 from tactile_conversions.stop_signals import init_ros, until_stop_signal
-from tactile_conversions.topics import ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S
+from tactile_conversions.topics import (
+    ESTIMATE_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    MATCH_TOLERANCE_S,
+    ROOT_NAMESPACE,
+    graph_namespace,
+    node_topic,
+)
 from tactile_description import BinGrid, SensorConfigError, default_sensor_path
 from tactile_description.command_line import ArgumentParser, error_exit, number_argument, stops_quietly_on_closed_pipe
 from tactile_fusion.metrics import force_metrics
@@ -44,10 +53,11 @@ from tactile_sim import SceneError
 
 
 class Monitor(Node):
-    """Collects estimates and matches each to the ground truth of the same capture time."""
+    """Collects estimates and matches each to the ground truth of the same capture time, of the graph in `namespace`
+    (the monitor is a node there)."""
 
-    def __init__(self, grid: BinGrid) -> None:
-        super().__init__("tactile_demo_monitor")
+    def __init__(self, grid: BinGrid, namespace: str = ROOT_NAMESPACE) -> None:
+        super().__init__("tactile_demo_monitor", namespace=namespace)
         self.grid = grid
         self.truths: deque[tuple[float, np.ndarray]] = deque(maxlen=200)
         self.latencies_s: list[float] = []
@@ -57,8 +67,8 @@ class Monitor(Node):
         self.missing_cameras: set[str] = set()
         self.estimated_components: set[tuple[str, ...]] = set()
         self.last: tuple[float, float] | None = None  # (estimated Fz, true Fz)
-        self.create_subscription(ForceDistribution, ESTIMATE_TOPIC, self.on_estimate, 50)
-        self.create_subscription(ForceDistribution, GROUND_TRUTH_TOPIC, self.on_truth, 50)
+        self.create_subscription(ForceDistribution, node_topic(ESTIMATE_TOPIC), self.on_estimate, 50)
+        self.create_subscription(ForceDistribution, node_topic(GROUND_TRUTH_TOPIC), self.on_truth, 50)
 
     def on_truth(self, msg: ForceDistribution) -> None:
         try:  # a message of another grid ended the demo with numpy's reshape error (code review)
@@ -120,6 +130,14 @@ class Monitor(Node):
         }
 
 
+def namespace_argument(text: str) -> str:
+    """--namespace: as topics.graph_namespace gives it; a name ROS refuses is a usage error (status 2) saying why."""
+    try:
+        return graph_namespace(text)
+    except ValueError as exc:
+        raise ArgumentTypeError(str(exc)) from None
+
+
 @stops_quietly_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(prog="tactile-demo", description=__doc__.split("\n\n")[0])
@@ -129,6 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensor", default="", help="sensor description YAML (default: the installed one)")
     parser.add_argument("--model", default="", help="trained model directory (default: the shipped model)")
     parser.add_argument("--log-dir", default="log/demo", help="where the nodes' output goes (default log/demo)")
+    parser.add_argument("--namespace", type=namespace_argument, default="/",
+                        help="ROS namespace of the graph (e.g. left: its estimate on /left/tactile/force_distribution; "
+                             "default: the root namespace)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     args = parser.parse_args(argv)
 
@@ -139,9 +160,10 @@ def main(argv: list[str] | None = None) -> int:
     except (SensorConfigError, SceneError, LogDirError) as exc:
         return error_exit("tactile-demo", exc)
     init_ros()
-    monitor = Monitor(sensor.grid)
+    monitor = Monitor(sensor.grid, args.namespace)
     graph = start_tool_graph("tactile-demo", sensor_graph(sensor, sensor_config, "sim", args.scene,
-                                                          model_dir=args.model), log_dir, monitor)
+                                                          model_dir=args.model, namespace=args.namespace), log_dir,
+                             monitor)
     if isinstance(graph, int):
         return graph
     specs, processes = graph

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from tactile_bringup.graph import NodeSpec
 from tactile_conversions.spinning import spin_until
 from tactile_conversions.stop_signals import stopped_by_signal
-from tactile_conversions.topics import ESTIMATE_TOPIC
+from tactile_conversions.topics import ESTIMATE_TOPIC, node_topic
 from tactile_description import SensorDescription, load_sensor
 from tactile_description.command_line import error_exit, stop_signals_ignored
 from tactile_sim.contact import ground_truth_model
@@ -102,25 +102,26 @@ def start_graph(specs: list[NodeSpec], log_dir: Path, probe: Node,
     """Start the nodes of a sensor graph, cameras last; (the specs in start order, their processes).
 
     The fusion node takes its reference frames from the first bundles it sees, which must show the surface at
-    rest: the cameras start only once `probe` sees it publish (it loads the model for a few seconds), so a
-    scene's opening rest frames are the ones it gets. Returns after `timeout_s` without it, with a message. A node
-    that exits meanwhile (it refused its model, scene or sensor file) stops the graph: GraphStartError names it
-    with the last line of its log, which says why.
+    rest: the cameras start only once `probe` (a node in the graph's namespace) sees it publish (it loads the model
+    for a few seconds), so a scene's opening rest frames are the ones it gets. Returns after `timeout_s` without it,
+    with a message. A node that exits meanwhile (it refused its model, scene or sensor file) stops the graph:
+    GraphStartError names it with the last line of its log, which says why.
     """
     cameras = [s for s in specs if s.package == "tactile_camera_driver"]
     others = [s for s in specs if s not in cameras]
+    estimate = node_topic(ESTIMATE_TOPIC)  # in the probe's namespace
     processes = []
     try:
         for spec in others:  # one at a time: a list built whole lost the processes before a start that failed
             processes.append(started(spec, log_dir))
-        spin_until(probe, lambda: probe.count_publishers(ESTIMATE_TOPIC) or first_exited(others, processes),
+        spin_until(probe, lambda: probe.count_publishers(estimate) or first_exited(others, processes),
                    timeout_s)
         died = first_exited(others, processes)
         if died:
             code = processes[others.index(died)].returncode
             raise GraphStartError(f"node {died.name} exited with status {code} while the graph started: "
                                   f"{log_tail(log_dir, died) or '(its log is empty)'} (log: {log_dir / died.name}.log)")
-        if not probe.count_publishers(ESTIMATE_TOPIC):
+        if not probe.count_publishers(estimate):
             print(f"the fusion node did not come up within {timeout_s:.0f} s; see {log_dir}/", file=sys.stderr)
         for spec in cameras:
             processes.append(started(spec, log_dir))

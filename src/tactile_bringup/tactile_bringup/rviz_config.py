@@ -17,7 +17,7 @@ from pathlib import Path
 import yaml
 
 from tactile_conversions.forces import MARKER_NAMESPACE
-from tactile_conversions.topics import MARKERS_TOPIC, WRENCH_TOPIC
+from tactile_conversions.topics import MARKERS_TOPIC, ROOT_NAMESPACE, WRENCH_TOPIC, in_namespace
 from tactile_description import SensorDescription
 
 #: RViz draws the total force at this many metres per newton (1 N as 1 cm; the lines of the bins: 50 mN as 1 cm).
@@ -50,17 +50,18 @@ def grid_display(sensor: SensorDescription) -> dict:
             "Alpha": 0.5}
 
 
-def rviz_config(sensor: SensorDescription) -> dict:
-    """The configuration as the mapping RViz reads from a .rviz file."""
+def rviz_config(sensor: SensorDescription, namespace: str = ROOT_NAMESPACE) -> dict:
+    """The configuration as the mapping RViz reads from a .rviz file, for the sensor graph in `namespace` (as
+    tactile_conversions.topics.graph_namespace gives it)."""
     centre_x, centre_y = sensor.grid.centre_m
     extent = max(sensor.grid.width_m, sensor.grid.length_m)
     displays = [
         grid_display(sensor),
         {"Class": "rviz_default_plugins/MarkerArray", "Name": "Bin forces", "Enabled": True,
-         "Topic": _topic(MARKERS_TOPIC), "Namespaces": {MARKER_NAMESPACE: True}},
+         "Topic": _topic(in_namespace(MARKERS_TOPIC, namespace)), "Namespaces": {MARKER_NAMESPACE: True}},
         {"Class": "rviz_default_plugins/Wrench", "Name": "Total force", "Enabled": True,
-         "Topic": _topic(WRENCH_TOPIC), "Force Arrow Scale": WRENCH_ARROW_M_PER_N, "Force Color": "204; 51; 51",
-         "Torque Arrow Scale": 0},
+         "Topic": _topic(in_namespace(WRENCH_TOPIC, namespace)), "Force Arrow Scale": WRENCH_ARROW_M_PER_N,
+         "Force Color": "204; 51; 51", "Torque Arrow Scale": 0},
     ]
     view = {"Class": "rviz_default_plugins/Orbit", "Name": "Current View", "Target Frame": "<Fixed Frame>",
             "Focal Point": {"X": round(centre_x, 9), "Y": round(centre_y, 9), "Z": 0},
@@ -74,16 +75,18 @@ def rviz_config(sensor: SensorDescription) -> dict:
                 "Views": {"Current": view}}}
 
 
-def write_rviz_config(sensor: SensorDescription, path: str | Path | None = None) -> Path:
-    """Write `rviz_config(sensor)` to `path` (a .rviz file); returns the path.
+def write_rviz_config(sensor: SensorDescription, path: str | Path | None = None,
+                      namespace: str = ROOT_NAMESPACE) -> Path:
+    """Write `rviz_config(sensor, namespace)` to `path` (a .rviz file); returns the path.
 
     Without a path, to the file that sensor.launch.py gives RViz: `$ROS_HOME/tactile_bringup/rviz_<digest>.rviz`
     (ROS_HOME defaults to ~/.ros, where ROS keeps its logs), named by a digest of the configuration, so that every
-    launch of a sensor description writes the same file again and two launches of different sensors do not share one.
+    launch of a sensor description writes the same file again and two launches of different sensors (or namespaces)
+    do not share one.
     A temporary directory per launch (before 2026-11-27) left one behind at every launch. Where that folder cannot be
     written (a ROS_HOME that is a file or read-only, no home directory), a new temporary directory takes the file: the
     graph must not fail to start for RViz's sake (review)."""
-    text = yaml.safe_dump(rviz_config(sensor), sort_keys=False)
+    text = yaml.safe_dump(rviz_config(sensor, namespace), sort_keys=False)
     if path is not None:
         return _replace_file(Path(path), text)
     name = f"rviz_{hashlib.sha256(text.encode()).hexdigest()[:16]}.rviz"

@@ -82,6 +82,22 @@ def test_parameters_become_ros_arguments():
                                               "name": "it's"})
     assert spec.ros_arguments() == ["--ros-args", "-r", "__node:=my_node", "-p", "scene:='demo'", "-p", "loop:=true",
                                     "-p", "rate_hz:=40.0", "-p", "model_dir:=''", "-p", "name:='it''s'"]
+    assert replace(spec, parameters={}, namespace="/left").ros_arguments() == ["--ros-args", "-r", "__node:=my_node",
+                                                                            "-r", "__ns:=/left"]
+
+
+def test_a_graph_in_a_namespace_has_every_node_there_and_a_bad_namespace_is_refused(sensor):
+    sources_file = str(SHARE / "config" / "camera_sources.yaml")
+    for given, namespace in (("", "/"), ("/", "/"), ("left", "/left"), ("/left/", "/left"),
+                             ("robot/left", "/robot/left")):
+        for source, extra in (("sim", {}), ("cameras", {"camera_sources_file": sources_file})):
+            specs = sensor_graph(sensor, "", source, namespace=given, **extra)
+            assert {s.namespace for s in specs} == {namespace}, (given, source)
+    for bad, reason in (("1st", "must not have a token that starts with a number"),
+                        ("left arm", "must not contain characters other than alphanumerics"),
+                        ("robot//left", "must not contain repeated '/'")):
+        with pytest.raises(ValueError, match=f"namespace '{bad}': not a ROS namespace \\(namespace {reason}"):
+            sensor_graph(sensor, "", "sim", namespace=bad)
 
 
 def test_installed_launch_file_builds_the_graph_from_this_module():
@@ -103,7 +119,11 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     # RViz gets the configuration written for the sensor description the graph runs, not a fixed file.
     rviz = next(node for node in ast.walk(tree) if isinstance(node, ast.Call)
                 and getattr(node.func, "id", None) == "write_rviz_config")
-    assert getattr(rviz.args[0], "id", None) == "sensor" and len(rviz.args) == 1 and not rviz.keywords  # ROS_HOME
+    assert getattr(rviz.args[0], "id", None) == "sensor" and len(rviz.args) == 1  # no path: under ROS_HOME
+    assert [k.arg for k in rviz.keywords] == ["namespace"]
+    # Every node, RViz too, runs in the graph's namespace: one that did not would publish or look beside it.
+    nodes = [node for node in ast.walk(tree) if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Node"]
+    assert len(nodes) == 2 and all("namespace" in [k.arg for k in node.keywords] for node in nodes)
     assert 'load_sensor(value["sensor_config"])' in source and '"config" / "tactile.rviz"' not in source
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
@@ -128,6 +148,8 @@ def test_rviz_config_shows_the_topics_the_fusion_node_publishes(sensor):
     displays = rviz_config(sensor)["Visualization Manager"]["Displays"]
     topics = {d["Class"]: d["Topic"]["Value"] for d in displays if "Topic" in d}
     assert topics == {"rviz_default_plugins/MarkerArray": MARKERS_TOPIC, "rviz_default_plugins/Wrench": WRENCH_TOPIC}
+    displays = rviz_config(sensor, "/left")["Visualization Manager"]["Displays"]
+    assert {d["Topic"]["Value"] for d in displays if "Topic" in d} == {"/left" + MARKERS_TOPIC, "/left" + WRENCH_TOPIC}
     markers = next(d for d in displays if d["Class"] == "rviz_default_plugins/MarkerArray")
     assert markers["Namespaces"] == {MARKER_NAMESPACE: True}
 

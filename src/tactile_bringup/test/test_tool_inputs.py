@@ -1,4 +1,4 @@
-"""tactile-demo and tactile-latency refuse a bad scene, sensor file or log directory before any node starts: one
+"""tactile-demo and tactile-latency refuse a bad scene, sensor file, log directory or option before any node starts: one
 line on stderr and exit status 2 (no graph starts, so these run in a second)."""
 
 from pathlib import Path
@@ -62,5 +62,15 @@ def test_latency_refuses_a_markers_rate_the_fusion_node_would_refuse(capsys, tmp
         latency.main(["--markers-rate", rate, "--log-dir", str(tmp_path / "logs")])
     assert stop.value.code == 2
     assert f"argument --markers-rate: must be a finite number of Hz in [1.15741e-05, 1000], got '{rate}'" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize("namespace", ["1st", "left arm", "robot//left"])
+def test_demo_refuses_a_namespace_ros_would_refuse_before_any_node_starts(capsys, tmp_path, namespace):
+    with pytest.raises(SystemExit) as stop:
+        demo.main(["--namespace", namespace, "--log-dir", str(tmp_path / "logs")])
+    assert stop.value.code == 2
+    assert f"argument --namespace: namespace '{namespace}': not a ROS namespace (namespace must not" in \
         capsys.readouterr().err
     assert not (tmp_path / "logs").exists()

@@ -64,7 +64,7 @@ from tactile_conversions.parameters import (
     text,
 )
 from tactile_conversions.timers import clock_running, steady_timer
-from tactile_conversions.topics import camera_frame_id, camera_topic
+from tactile_conversions.topics import camera_frame_id, camera_topic, node_topic
 from tactile_description.imaging import FrameError, crop_and_downsample
 from tactile_description.value_checks import is_whole_number
 
@@ -144,7 +144,7 @@ class CameraNode(Node):
                                  f"({list(sensor.camera_ids)}), got {self.camera_id!r}")
         self.camera = sensor.cameras[sensor.camera_ids.index(self.camera_id)]
         self.frame_rate_hz = rate_hz(self, "rate_hz", sensor.frame_rate_hz)
-        self.publisher = self.create_publisher(Image, camera_topic(self.camera_id), qos_profile_sensor_data)
+        self.publisher = self.create_publisher(Image, node_topic(camera_topic(self.camera_id)), qos_profile_sensor_data)
         self.next_open_s = 0.0
         self.frames_published = 0
         self.frames_since_rewind = 0  # since the source was opened or a video file played again from its start

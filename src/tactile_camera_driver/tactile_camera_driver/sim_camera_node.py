@@ -19,8 +19,12 @@ and while DDS discovery took 2.4 s to connect the bundle node, the demo's rest w
 So where later nodes must hear the scene from its start, `wait_for_nodes` names them (comma-separated), and the scene
 plays only once the ROS graph shows each of them with a subscription: the sensor graph (sensor.launch.py,
 tactile-demo) names its bundle node, which subscribes to the images, and its fusion node, which subscribes to the
-bundles only once its model is loaded, seconds after a launch file starts every node at once. Left empty (the
-default), as a graph without those nodes needs, the scene plays as soon as its images are heard.
+bundles only once its model is loaded, seconds after a launch file starts every node at once. The names are of nodes in
+this node's own namespace: with two sensors' graphs in /left and /right, the right cameras wait for the right fusion
+node, not for whichever came up first (until 2026-11-28 any namespace counted). Left empty (the default), as a graph
+without those nodes needs, the scene plays as soon as its images are heard.
+
+The topics above are those of the root namespace; in a namespace they lie under it (tactile_conversions.topics).
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ from tactile_conversions.parameters import (
 )
 from tactile_conversions.ros_time import seconds_to_time
 from tactile_conversions.timers import clock_running, steady_timer
-from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_frame_id, camera_topic
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, camera_frame_id, camera_topic, node_topic
 from tactile_description import FORCE_COMPONENTS, SensorConfigError
 from tactile_msgs.msg import ForceDistribution
 from tactile_sim import SceneError, Simulator, load_scene
@@ -71,9 +75,9 @@ class SimCameraNode(Node):
             self.scene = load_scene(self.scene_name, self.sensor)
             self.frames = self.simulator.stream(self.scene)  # refuses contacts the ground truth would count twice
         self.rng = np.random.default_rng(0)
-        self.image_pubs = {c: self.create_publisher(Image, camera_topic(c), qos_profile_sensor_data)
+        self.image_pubs = {c: self.create_publisher(Image, node_topic(camera_topic(c)), qos_profile_sensor_data)
                            for c in self.sensor.camera_ids}
-        self.truth_pub = self.create_publisher(ForceDistribution, GROUND_TRUTH_TOPIC, 10)
+        self.truth_pub = self.create_publisher(ForceDistribution, node_topic(GROUND_TRUTH_TOPIC), 10)
         self.playing = False  # until its listeners are there (module docstring, `listened`)
         self.timer = steady_timer(self, 1.0 / frame_rate_hz, self.publish_frame)
         awaited = f" and nodes {list(self.awaited_nodes)} subscribe" if self.awaited_nodes else " are subscribed"
@@ -102,16 +106,14 @@ class SimCameraNode(Node):
         return not waiting
 
     def subscribes(self, name: str) -> bool:
-        """Whether the ROS graph shows a node called `name`, in any namespace, with a subscription."""
-        for node, namespace in self.get_node_names_and_namespaces():
-            if node != name:
-                continue
-            try:
-                if self.get_subscriber_names_and_types_by_node(node, namespace):
-                    return True
-            except RuntimeError:  # rclpy's NodeNameNonExistentError: it left the graph meanwhile
-                continue
-        return False
+        """Whether the ROS graph shows a node called `name` in this node's namespace with a subscription."""
+        namespace = self.get_namespace()
+        if (name, namespace) not in self.get_node_names_and_namespaces():
+            return False
+        try:
+            return bool(self.get_subscriber_names_and_types_by_node(name, namespace))
+        except RuntimeError:  # rclpy's NodeNameNonExistentError: it left the graph meanwhile
+            return False
 
     def declare_stamp_jitter(self, frame_rate_hz: float) -> float:
         """The `stamp_jitter_s` parameter: from 0 to one frame period.

@@ -1,4 +1,10 @@
-"""The topic names of the tactile graph (docs/nodes.md), in one place for the nodes, the tools and the tests."""
+"""The topic names of the tactile graph (docs/nodes.md), in one place for the nodes, the tools and the tests.
+
+The names below are where the topics lie for a graph in the root namespace, the default. The nodes publish and
+subscribe them relative (`node_topic`), so that a graph started in a namespace (`sensor.launch.py namespace:=left`,
+`tactile-demo --namespace left`, `--ros-args -r __ns:=/left`) has all its topics under it: two sensors on one robot
+each run their own graph, /left/tactile/force_distribution beside /right/tactile/force_distribution.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +17,7 @@ GROUND_TRUTH_TOPIC = "/tactile/ground_truth/force_distribution"
 MATCH_TOLERANCE_S = 0.010
 WRENCH_TOPIC = "/tactile/wrench"
 MARKERS_TOPIC = "/tactile/force_markers"
+ROOT_NAMESPACE = "/"
 
 
 def camera_topic(camera_id: str) -> str:
@@ -21,3 +28,32 @@ def camera_topic(camera_id: str) -> str:
 def camera_frame_id(camera_id: str) -> str:
     """The frame_id of the camera `camera_id`'s images (the real and the simulated cameras stamp the same)."""
     return f"{camera_id}_optical"
+
+
+def node_topic(topic: str) -> str:
+    """A topic of this module as a node publishes or subscribes it: relative, so that rcl resolves it in the node's
+    namespace ('/tactile/x' -> 'tactile/x', which a node in /left resolves to /left/tactile/x and a node in the root
+    namespace to /tactile/x)."""
+    return topic.lstrip("/")
+
+
+def graph_namespace(text: str) -> str:
+    """The namespace a sensor graph runs in, from a launch argument or a command-line option: "" or "/" for the root
+    namespace, "left" or "/left" for /left, "robot/left" for /robot/left. A name that ROS refuses (a token that starts
+    with a digit, characters other than letters, digits, "_" and "/") raises ValueError with rcl's reason."""
+    from rclpy.exceptions import InvalidNamespaceException  # rclpy's C extension, for the tools that need it only
+    from rclpy.validate_namespace import validate_namespace
+
+    name = "/" + text.strip().strip("/")
+    try:
+        validate_namespace(name)
+    except InvalidNamespaceException as exc:
+        reason = str(exc).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")
+        raise ValueError(f"namespace {text!r}: not a ROS namespace ({reason})") from None
+    return name
+
+
+def in_namespace(topic: str, namespace: str) -> str:
+    """Where a topic of this module lies for a graph in `namespace` (as `graph_namespace` gives it):
+    in_namespace(ESTIMATE_TOPIC, "/left") == "/left/tactile/force_distribution"."""
+    return topic if namespace == ROOT_NAMESPACE else namespace + topic

@@ -43,7 +43,7 @@ from tactile_conversions.parameters import (
 )
 from tactile_conversions.ros_time import is_ros_time, seconds_to_time, time_to_seconds
 from tactile_conversions.timers import steady_timer
-from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic
+from tactile_conversions.topics import BUNDLE_TOPIC, camera_topic, node_topic
 from tactile_fusion.approximate_sync import ApproximateTimeSync, Bundle, SyncCounters, camera_sync_settings
 from tactile_fusion.camera_arrivals import CameraArrivals
 from tactile_fusion.camera_rates import CameraPeriods, SyncSettings, period_misfits
@@ -76,7 +76,7 @@ class BundleNode(Node):
         self.keep_grouping_s = positive_float(self, "keep_grouping_s", defaults["keep_grouping_s"], allow_zero=True)
         self.camera_timeout_s = period_s(self, "camera_timeout_s", 10 / self.sensor.frame_rate_hz)
         self.restart_jump_s = defaults["restart_jump_s"]
-        self.publisher = self.create_publisher(ImageBundle, BUNDLE_TOPIC, 10)
+        self.publisher = self.create_publisher(ImageBundle, node_topic(BUNDLE_TOPIC), 10)
         self.arrivals = CameraArrivals(self.sensor.camera_ids)
         self.arrival_clock_simulated = self.get_clock().ros_time_is_active
         self.live_cameras: tuple[str, ...] = ()
@@ -88,7 +88,7 @@ class BundleNode(Node):
                                           self.camera_timeout_s)
         self.named_rates: set[str] = set()  # cameras whose rate was named in the log
         for camera_id in self.sensor.camera_ids:
-            self.create_subscription(Image, camera_topic(camera_id),
+            self.create_subscription(Image, node_topic(camera_topic(camera_id)),
                                      lambda msg, c=camera_id: self.on_image(c, msg), qos_profile_sensor_data)
         steady_timer(self, max(self.camera_timeout_s / 2, CAMERA_CHECK_MIN_PERIOD_S), self.check_cameras)
         steady_timer(self, 1.0, self.report_drops)

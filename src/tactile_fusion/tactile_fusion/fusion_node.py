@@ -52,7 +52,7 @@ from tactile_conversions.parameters import (
     whole_number,
 )
 from tactile_conversions.ros_time import is_ros_stamp, time_to_seconds
-from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC
+from tactile_conversions.topics import BUNDLE_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, WRENCH_TOPIC, node_topic
 from tactile_description import left_out_components
 from tactile_fusion.artifacts import (
     ModelFileError,
@@ -110,10 +110,10 @@ class FusionNode(Node):
         self.cameras_in_bundles: set[str] = set()  # every camera id a bundle has held (other_sensor_hint)
         self.load = ProcessingLoad(1.0 / self.sensor.frame_rate_hz)
         self.sequence = BundleSequence()
-        self.forces_pub = self.create_publisher(ForceDistribution, ESTIMATE_TOPIC, 10)
-        self.wrench_pub = self.create_publisher(WrenchStamped, WRENCH_TOPIC, 10)
-        self.markers_pub = self.create_publisher(MarkerArray, MARKERS_TOPIC, 10)
-        self.create_subscription(ImageBundle, BUNDLE_TOPIC, self.on_bundle, 10)
+        self.forces_pub = self.create_publisher(ForceDistribution, node_topic(ESTIMATE_TOPIC), 10)
+        self.wrench_pub = self.create_publisher(WrenchStamped, node_topic(WRENCH_TOPIC), 10)
+        self.markers_pub = self.create_publisher(MarkerArray, node_topic(MARKERS_TOPIC), 10)
+        self.create_subscription(ImageBundle, node_topic(BUNDLE_TOPIC), self.on_bundle, 10)
         self.create_service(Trigger, "~/capture_reference", self.on_capture_reference)
         log_sensor_description(self, self.sensor)
         self.get_logger().info(f"{backend} {precision} model for cameras {list(self.sensor.camera_ids)}; capturing "
