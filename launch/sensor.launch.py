@@ -9,7 +9,9 @@ The nodes and their parameters come from tactile_bringup.graph, the same descrip
 where no launch system is installed. RViz gets the configuration of the sensor description it runs
 (tactile_bringup.rviz_config: its frame and its bins, the topics of its namespace), written to
 $ROS_HOME/tactile_bringup/ (~/.ros/tactile_bringup/). With `namespace`, every node and topic of the graph lies under
-it (/left/tactile/force_distribution): a robot with two sensors launches this file once for each.
+it (/left/tactile/force_distribution): a robot with two sensors launches this file once for each. Included by a launch
+file that pushes a namespace (PushRosNamespace("robot")), the graph lies in it: /robot, or /robot/left with
+namespace:=left (an absolute namespace:=/left is not put under it).
 """
 
 from pathlib import Path
@@ -23,6 +25,7 @@ from launch_ros.actions import Node
 
 from tactile_bringup.graph import sensor_graph
 from tactile_bringup.rviz_config import write_rviz_config
+from tactile_conversions.topics import graph_namespace
 from tactile_description import load_sensor
 
 SHARE = Path(get_package_share_directory("tactile_bringup"))
@@ -43,13 +46,16 @@ ARGUMENTS = {
 def graph_nodes(context):
     value = {name: LaunchConfiguration(name).perform(context) for name in ARGUMENTS}
     sensor = load_sensor(value["sensor_config"])
+    # Absolute, so within what an including launch file pushed (PushRosNamespace): a node given an absolute namespace
+    # is not put under the pushed one, so the pushed one must be part of it.
+    namespace = graph_namespace(value["namespace"], context.launch_configurations.get("ros_namespace") or "/")
     specs = sensor_graph(sensor, value["sensor_config"], value["source"], value["scene"], value["camera_sources"],
-                         value["model_dir"], value["backend"], value["precision"], value["namespace"])
+                         value["model_dir"], value["backend"], value["precision"], namespace)
     nodes = [Node(package=s.package, executable=s.executable, name=s.name, namespace=s.namespace,
                   parameters=[s.parameters], output="screen") for s in specs]
     if IfCondition(value["rviz"]).evaluate(context):
-        config = write_rviz_config(sensor, namespace=specs[0].namespace)
-        nodes.append(Node(package="rviz2", executable="rviz2", namespace=specs[0].namespace,
+        config = write_rviz_config(sensor, namespace=namespace)
+        nodes.append(Node(package="rviz2", executable="rviz2", namespace=namespace,
                           arguments=["-d", str(config)]))
     return nodes
 

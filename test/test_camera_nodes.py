@@ -346,12 +346,17 @@ def test_the_simulated_scene_waits_for_the_nodes_of_its_own_namespace(ros_probe,
     def bundles(side: str) -> NodeSpec:
         return NodeSpec("tactile_fusion", "bundle_node", "bundles", {"sensor_config": CONFIG}, f"/{side}")
 
-    processes = [start_node(bundles("left"), tmp_path / "left")]
+    def left_bundles_subscribe() -> bool:
+        return ("bundles", "/left") in ros_probe.get_node_names_and_namespaces() and bool(
+            ros_probe.get_subscriber_names_and_types_by_node("bundles", "/left"))
+
     right = tmp_path / "right"
-    processes.append(start_node(NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
-                                         {"sensor_config": CONFIG, "scene": str(scene), "loop": False, "rate_hz": 40,
-                                          "wait_for_nodes": "bundles"}, "/right"), right))
+    processes = [start_node(bundles("left"), tmp_path / "left")]
     try:
+        left_up = spin_until(ros_probe, left_bundles_subscribe, 20.0)  # before the right scene could start on it
+        processes.append(start_node(NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_once",
+                                             {"sensor_config": CONFIG, "scene": str(scene), "loop": False,
+                                              "rate_hz": 40, "wait_for_nodes": "bundles"}, "/right"), right))
         wait_for_log(right / "sim_once.log", "waiting for nodes ['bundles'] to subscribe", timeout_s=20.0)
         spin_until(ros_probe, lambda: False, 2.0)
         images_before = len(images)
@@ -360,7 +365,7 @@ def test_the_simulated_scene_waits_for_the_nodes_of_its_own_namespace(ros_probe,
     finally:
         codes = stop_nodes(processes)
     log = (right / "sim_once.log").read_text()
-    assert images_before == 0 and len(images) == frames, log
+    assert left_up and images_before == 0 and len(images) == frames, log
     assert codes == [0, 0, 0], log
 
 

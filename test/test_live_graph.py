@@ -96,7 +96,7 @@ def test_two_sensors_each_in_a_namespace_of_its_own_keep_their_topics_apart(ros_
     here `tactile-demo --namespace`): every topic of a graph lies under its namespace and none in the root one, and
     each graph hears only its own cameras. Until 2026-11-28 the topic names were absolute: both fusion nodes would
     have read both sensors' bundles and published on one /tactile/force_distribution."""
-    demos = {side: graph_tools.start(["tactile-demo", "--namespace", side, "--duration", "10", "--json", "--log-dir",
+    demos = {side: graph_tools.start(["tactile-demo", "--namespace", side, "--duration", "15", "--json", "--log-dir",
                                       str(tmp_path / side)]) for side in ("left", "right")}
     expected = {f"/{side}/tactile/{topic}" for side in demos
                 for topic in ("cam0/image", "cam3/image", "image_bundle", "force_distribution",

@@ -23,7 +23,10 @@ class NodeSpec:
     executable: str
     name: str
     parameters: dict[str, str | int | float | bool] = field(default_factory=dict)
-    namespace: str = ROOT_NAMESPACE  # as tactile_conversions.topics.graph_namespace gives it
+    namespace: str = ROOT_NAMESPACE  # "left", "/left": made absolute by tactile_conversions.topics.graph_namespace
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "namespace", graph_namespace(self.namespace))  # rcl takes only absolute ones
 
     def ros_arguments(self) -> list[str]:
         """Command-line arguments that give the node its name, namespace and parameters (`--ros-args ...`)."""
@@ -68,7 +71,6 @@ def sensor_graph(sensor: SensorDescription, sensor_config: str, source: str = "s
     raises), which moves all the graph's topics under it: one graph per sensor, each in a namespace of its own."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
-    namespace = graph_namespace(namespace)
     common = {"sensor_config": sensor_config}
     bundles = NodeSpec("tactile_fusion", "bundle_node", "tactile_bundle", common, namespace)
     fusion = NodeSpec("tactile_fusion", "fusion_node", "tactile_fusion",

@@ -51,8 +51,8 @@ def grid_display(sensor: SensorDescription) -> dict:
 
 
 def rviz_config(sensor: SensorDescription, namespace: str = ROOT_NAMESPACE) -> dict:
-    """The configuration as the mapping RViz reads from a .rviz file, for the sensor graph in `namespace` (as
-    tactile_conversions.topics.graph_namespace gives it)."""
+    """The configuration as the mapping RViz reads from a .rviz file, for the sensor graph in `namespace` ("left" or
+    "/left", see tactile_conversions.topics.graph_namespace)."""
     centre_x, centre_y = sensor.grid.centre_m
     extent = max(sensor.grid.width_m, sensor.grid.length_m)
     displays = [

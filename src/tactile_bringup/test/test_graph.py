@@ -10,6 +10,7 @@ from ament_index_python.packages import get_package_prefix, get_package_share_di
 
 from tactile_bringup.graph import NodeSpec, camera_sources, sensor_graph
 from tactile_bringup.rviz_config import grid_display, rviz_config, write_rviz_config
+from tactile_conversions.topics import graph_namespace
 from tactile_description import default_sensor_path, load_sensor
 
 SHARE = Path(get_package_share_directory("tactile_bringup"))
@@ -82,8 +83,9 @@ def test_parameters_become_ros_arguments():
                                               "name": "it's"})
     assert spec.ros_arguments() == ["--ros-args", "-r", "__node:=my_node", "-p", "scene:='demo'", "-p", "loop:=true",
                                     "-p", "rate_hz:=40.0", "-p", "model_dir:=''", "-p", "name:='it''s'"]
-    assert replace(spec, parameters={}, namespace="/left").ros_arguments() == ["--ros-args", "-r", "__node:=my_node",
-                                                                            "-r", "__ns:=/left"]
+    for namespace in ("/left", "left"):  # rcl takes only an absolute __ns
+        assert replace(spec, parameters={}, namespace=namespace).ros_arguments() == [
+            "--ros-args", "-r", "__node:=my_node", "-r", "__ns:=/left"]
 
 
 def test_a_graph_in_a_namespace_has_every_node_there_and_a_bad_namespace_is_refused(sensor):
@@ -93,6 +95,10 @@ def test_a_graph_in_a_namespace_has_every_node_there_and_a_bad_namespace_is_refu
         for source, extra in (("sim", {}), ("cameras", {"camera_sources_file": sources_file})):
             specs = sensor_graph(sensor, "", source, namespace=given, **extra)
             assert {s.namespace for s in specs} == {namespace}, (given, source)
+    # Within a namespace that a launch file including sensor.launch.py pushed, as ROS puts a relative name there.
+    for given, parent, namespace in (("left", "/robot", "/robot/left"), ("", "/robot", "/robot"),
+                                     ("/left", "/robot", "/left"), ("left", "/", "/left")):
+        assert graph_namespace(given, parent) == namespace
     for bad, reason in (("1st", "must not have a token that starts with a number"),
                         ("left arm", "must not contain characters other than alphanumerics"),
                         ("robot//left", "must not contain repeated '/'")):
@@ -120,10 +126,13 @@ def test_installed_launch_file_builds_the_graph_from_this_module():
     rviz = next(node for node in ast.walk(tree) if isinstance(node, ast.Call)
                 and getattr(node.func, "id", None) == "write_rviz_config")
     assert getattr(rviz.args[0], "id", None) == "sensor" and len(rviz.args) == 1  # no path: under ROS_HOME
-    assert [k.arg for k in rviz.keywords] == ["namespace"]
-    # Every node, RViz too, runs in the graph's namespace: one that did not would publish or look beside it.
+    assert [(k.arg, getattr(k.value, "id", None)) for k in rviz.keywords] == [("namespace", "namespace")]
+    # Every node, RViz too, runs in the graph's namespace: one that did not would publish or look beside it. That
+    # namespace is absolute, so it must hold what an including launch file pushed (launch_ros keeps it as the launch
+    # configuration ros_namespace, and puts a node given an absolute namespace outside it).
     nodes = [node for node in ast.walk(tree) if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Node"]
     assert len(nodes) == 2 and all("namespace" in [k.arg for k in node.keywords] for node in nodes)
+    assert 'graph_namespace(value["namespace"], context.launch_configurations.get("ros_namespace") or "/")' in source
     assert 'load_sensor(value["sensor_config"])' in source and '"config" / "tactile.rviz"' not in source
     for path in ("config/sensor.yaml", "config/camera_sources.yaml", "config/tactile.rviz"):
         assert (SHARE / path).exists(), path
@@ -148,8 +157,10 @@ def test_rviz_config_shows_the_topics_the_fusion_node_publishes(sensor):
     displays = rviz_config(sensor)["Visualization Manager"]["Displays"]
     topics = {d["Class"]: d["Topic"]["Value"] for d in displays if "Topic" in d}
     assert topics == {"rviz_default_plugins/MarkerArray": MARKERS_TOPIC, "rviz_default_plugins/Wrench": WRENCH_TOPIC}
-    displays = rviz_config(sensor, "/left")["Visualization Manager"]["Displays"]
-    assert {d["Topic"]["Value"] for d in displays if "Topic" in d} == {"/left" + MARKERS_TOPIC, "/left" + WRENCH_TOPIC}
+    for namespace in ("/left", "left"):
+        displays = rviz_config(sensor, namespace)["Visualization Manager"]["Displays"]
+        assert {d["Topic"]["Value"] for d in displays if "Topic" in d} == {"/left" + MARKERS_TOPIC,
+                                                                           "/left" + WRENCH_TOPIC}
     markers = next(d for d in displays if d["Class"] == "rviz_default_plugins/MarkerArray")
     assert markers["Namespaces"] == {MARKER_NAMESPACE: True}
 

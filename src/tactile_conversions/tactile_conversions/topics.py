@@ -37,14 +37,17 @@ def node_topic(topic: str) -> str:
     return topic.lstrip("/")
 
 
-def graph_namespace(text: str) -> str:
-    """The namespace a sensor graph runs in, from a launch argument or a command-line option: "" or "/" for the root
-    namespace, "left" or "/left" for /left, "robot/left" for /robot/left. A name that ROS refuses (a token that starts
-    with a digit, characters other than letters, digits, "_" and "/") raises ValueError with rcl's reason."""
+def graph_namespace(text: str, parent: str = ROOT_NAMESPACE) -> str:
+    """The namespace a sensor graph runs in, from a launch argument or a command-line option, absolute: "" or "/" for
+    the root namespace, "left" or "/left" for /left, "robot/left" for /robot/left. As in ROS, a relative name lies in
+    `parent` (the namespace a launch file that includes sensor.launch.py pushed: "left" in /robot is /robot/left, ""
+    is /robot) and an absolute one does not ("/left" is /left). A name that ROS refuses (a token that starts with a
+    digit, characters other than letters, digits, "_" and "/") raises ValueError with rcl's reason."""
     from rclpy.exceptions import InvalidNamespaceException  # rclpy's C extension, for the tools that need it only
     from rclpy.validate_namespace import validate_namespace
 
-    name = "/" + text.strip().strip("/")
+    name = text.strip()
+    name = "/" + (name if name.startswith("/") else f"{parent}/{name}").strip("/")
     try:
         validate_namespace(name)
     except InvalidNamespaceException as exc:
@@ -54,6 +57,7 @@ def graph_namespace(text: str) -> str:
 
 
 def in_namespace(topic: str, namespace: str) -> str:
-    """Where a topic of this module lies for a graph in `namespace` (as `graph_namespace` gives it):
-    in_namespace(ESTIMATE_TOPIC, "/left") == "/left/tactile/force_distribution"."""
+    """Where a topic of this module lies for a graph in `namespace` ("left" or "/left", see `graph_namespace`):
+    in_namespace(ESTIMATE_TOPIC, "left") == "/left/tactile/force_distribution"."""
+    namespace = graph_namespace(namespace)
     return topic if namespace == ROOT_NAMESPACE else namespace + topic
