@@ -113,6 +113,30 @@ def test_record_replay_and_evaluate_the_simulated_graph(ros_probe, collect, loss
     assert summary["matched_with_ground_truth"] >= summary["estimates"] - 2  # truth may lag at the bag's ends
 
 
+def test_record_and_evaluate_the_graph_of_one_sensor_of_two_in_its_namespace(collect, tmp_path):
+    """A robot with two sensors runs a graph per sensor, each in a namespace (docs/nodes.md): `--namespace left`
+    records that graph's topics, and evaluates them against its ground truth."""
+    config = str(default_sensor_path())
+    sensor = load_sensor(config)
+    specs = [NodeSpec("tactile_camera_driver", "sim_camera_node", "sim_cameras", {"sensor_config": config}, "/left"),
+             NodeSpec("tactile_fusion", "bundle_node", "bundle", {"sensor_config": config}, "/left")]
+    processes = [start_node(spec, tmp_path / "logs") for spec in specs]
+    try:
+        assert collect(Image, "/left/tactile/cam0/image", seconds=20.0, qos=qos_profile_sensor_data, until=bool)
+        recorded = tactile_bag("record", str(tmp_path / "bag"), "--duration", "2", "--namespace", "left")
+    finally:
+        codes = stop_nodes(processes)
+    assert codes == [0, 0] and recorded.returncode == 0, recorded.stderr
+    with BagReader(tmp_path / "bag") as bag:
+        assert set(bag.topics) == {*(f"/left/tactile/{c}/image" for c in sensor.camera_ids),
+                                   *(f"/left/tactile/{topic}" for topic in ("image_bundle", "force_distribution",
+                                                                             "ground_truth/force_distribution"))}
+    evaluated = tactile_bag("eval", str(tmp_path / "bag"), "--namespace", "left", "--json", timeout_s=60.0)
+    assert evaluated.returncode == 0, evaluated.stderr
+    summary = json.loads(evaluated.stdout)
+    assert summary["source"] == "images" and summary["matched_with_ground_truth"] >= 10, summary
+
+
 #: A publisher outside the stack of a String every 20 ms until it is stopped: on topic sys.argv[1], its QoS
 #: sys.argv[2] ("best_effort": sensor-data QoS; "reliable"), its data the QoS and the message's number ("reliable 7").
 FOREIGN_PUBLISHER = """
@@ -217,7 +241,8 @@ def test_record_names_the_image_topics_of_other_cameras_when_its_own_are_silent(
     assert recorded.returncode == 1, recorded.stderr
     assert (f"tactile-bag record: images are published on /tactile/c0/image, /tactile/c1/image, /tactile/c2/image, "
             f"/tactile/c3/image, not recorded: the cameras of another sensor description than "
-            f"{default_sensor_path()}? (--sensor FILE)") in recorded.stderr
+            f"{default_sensor_path()} (--sensor FILE), or of a graph in another namespace (--namespace)?") in \
+        recorded.stderr
 
 
 def test_a_topic_outside_the_stack_with_subscribers_alone_is_not_recorded_without_a_publisher(ros_probe, tmp_path):

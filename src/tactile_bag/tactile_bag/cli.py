@@ -4,6 +4,8 @@
     tactile-bag play BAG [--rate R] [--loop] [--topics T ...]
     tactile-bag eval BAG [--model DIR] [--json]               metrics against the recorded ground truth
 
+record and eval take --namespace NS for a sensor's graph run in a namespace (its topics /NS/tactile/...).
+
 Bad input (a missing or damaged bag, an unknown topic, a bag without camera images, a model that does not fit
 the sensor) ends with one line on stderr and exit status 2. docs/bags.md has the details.
 """
@@ -24,7 +26,7 @@ from tactile_bag.play import MIN_RATE, play
 from tactile_bag.record import record
 from tactile_bag.topics import IMAGE_TYPE, absolute_topic, default_record_topics, other_sensor_hint, stack_topics
 from tactile_conversions.stop_signals import init_ros, stopped_by_signal
-from tactile_conversions.topics import GROUND_TRUTH_TOPIC
+from tactile_conversions.topics import GROUND_TRUTH_TOPIC, in_namespace, namespace_argument
 from tactile_description import load_sensor
 from tactile_description.command_line import (
     ArgumentParser,
@@ -41,11 +43,12 @@ from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, cont
 
 def cmd_record(args) -> int:
     sensor = load_sensor(args.sensor)
-    topics = args.topics or default_record_topics(sensor)
+    topics = args.topics or default_record_topics(sensor, args.namespace)
     init_ros()
     started = time.monotonic()
     try:
-        recording = record(args.out, topics, stack_topics(sensor), args.duration, args.discovery_timeout, args.wait)
+        recording = record(args.out, topics, stack_topics(sensor, args.namespace), args.duration,
+                           args.discovery_timeout, args.wait)
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             raise
@@ -63,7 +66,7 @@ def cmd_record(args) -> int:
           f"{args.out}: "
           + ", ".join(f"{t} {n}" for t, n in counts.items())
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
-    silent_images = [t for t in silent if stack_topics(sensor).get(t) == IMAGE_TYPE]
+    silent_images = [t for t in silent if stack_topics(sensor, args.namespace).get(t) == IMAGE_TYPE]
     if silent_images and recording.other_images:
         print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: "
               f"{other_sensor_hint(sensor)}", file=sys.stderr)
@@ -104,15 +107,16 @@ def cmd_eval(args) -> int:
     sensor = load_sensor(args.sensor)
     predictor = load_predictor(args.model, args.backend)
     # `is not None`: an empty --truth-topic is refused (absolute_topic), not taken for the default (review)
-    named_truth = absolute_topic(args.truth_topic, GROUND_TRUTH_TOPIC) if args.truth_topic is not None else None
-    truth_topic = named_truth or GROUND_TRUTH_TOPIC
+    simulator_truth = in_namespace(GROUND_TRUTH_TOPIC, args.namespace)
+    named_truth = absolute_topic(args.truth_topic, simulator_truth) if args.truth_topic is not None else None
+    truth_topic = named_truth or simulator_truth
     check_fits(predictor, sensor)  # before the warning, which would name the cameras of a model of others
     changes = sensor_changes(predictor.made_for, sensor)
     warning = sensor_changes_warning(changes, sensor)
     if warning:
         print(f"tactile-bag eval: warning: {warning}", file=sys.stderr)
     result = evaluate_bag(args.bag, sensor, predictor, args.source, args.reference_bundles,
-                          named_truth, contact_level_n=args.contact_level)
+                          named_truth, contact_level_n=args.contact_level, namespace=args.namespace)
     summary = {**result.summary(), "sensor_changes": changes}
     if summary["other_image_topics"]:
         print(f"tactile-bag eval: the bag also holds images on {', '.join(summary['other_image_topics'])}, not "
@@ -163,6 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="tactile-bag", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sensor_help = "sensor description YAML (default: the installed one, or $TACTILE_SENSOR_CONFIG)"
+    namespace_help = ("namespace of the sensor's graph (e.g. left: its topics /left/tactile/...; default: the root "
+                      "namespace)")
 
     rec = sub.add_parser("record", help="record topics of the live graph into a new MCAP bag")
     rec.add_argument("out", help="bag directory to create (must not exist)")
@@ -174,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="topics to record (default: every camera's images, the bundles, the estimate and the "
                           "ground truth)")
     rec.add_argument("--sensor", default=None, help=sensor_help)
+    rec.add_argument("--namespace", type=namespace_argument, default="/", help=namespace_help)
     rec.add_argument("--discovery-timeout", type=number_argument(0.0, "seconds", inclusive=True), default=2.0,
                      metavar="S",
                      help="how long to wait for a publisher of a topic outside the stack, to learn its type "
@@ -198,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--backend", default="onnxruntime", choices=("onnxruntime", "torch"),
                     help="inference backend (default onnxruntime, float32)")
     ev.add_argument("--sensor", default=None, help=sensor_help)
+    ev.add_argument("--namespace", type=namespace_argument, default="/", help=namespace_help)
     ev.add_argument("--source", default="auto", choices=SOURCES,
                     help="bundle the camera images (images), take the recorded bundles (bundles), or images when "
                          "the bag has every camera's (auto, default)")
@@ -207,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"complete bundles averaged into the reference frames, as fusion_node (default "
                          f"{REFERENCE_BUNDLES}, at most {MAX_REFERENCE_BUNDLES})")
     ev.add_argument("--truth-topic", default=None,
-                    help=f"ground truth topic; it must be in the bag (default {GROUND_TRUTH_TOPIC}, if there)")
+                    help=f"ground truth topic; it must be in the bag (default {GROUND_TRUTH_TOPIC} in --namespace, "
+                         "if there)")
     ev.add_argument("--json", action="store_true", help="print one JSON object")
     ev.add_argument("--contact-level", type=contact_level_argument, default=CONTACT_LEVEL_N, metavar="NEWTONS",
                     help="an estimated total Fz from which an estimate counts as reporting contact (default "

@@ -37,7 +37,14 @@ from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE, camera_topi
 from tactile_conversions.forces import forces_from_msg
 from tactile_conversions.images import bundle_problem, frame_from_images
 from tactile_conversions.ros_time import is_ros_stamp, is_ros_time, time_to_seconds
-from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, MATCH_TOLERANCE_S
+from tactile_conversions.topics import (
+    BUNDLE_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    MATCH_TOLERANCE_S,
+    ROOT_NAMESPACE,
+    graph_namespace,
+    in_namespace,
+)
 from tactile_description import SensorDescription
 from tactile_fusion.approximate_sync import ApproximateTimeSync, camera_sync_settings
 from tactile_fusion.live_estimation import REFERENCE_BUNDLES, BundleSequence, LiveEstimation
@@ -137,28 +144,40 @@ def deserialize(raw: bytes, cls: type, topic: str, time_ns: int):
                        "damaged or the topic's recorded type is wrong") from exc
 
 
-def choose_source(bag: BagReader, sensor: SensorDescription, source: str = "auto") -> str:
-    """'images' when the bag has every camera's images (or asked), 'bundles' for recorded ImageBundles."""
+def choose_source(bag: BagReader, sensor: SensorDescription, source: str = "auto",
+                  namespace: str = ROOT_NAMESPACE) -> str:
+    """'images' when the bag has every camera's images (or asked), 'bundles' for recorded ImageBundles, of the graph
+    in `namespace`."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
-    image_topics = list(camera_topics(sensor))
-    for topic in [*image_topics, BUNDLE_TOPIC]:
-        expected = BUNDLE_TYPE if topic == BUNDLE_TOPIC else IMAGE_TYPE
+    image_topics = list(camera_topics(sensor, namespace))
+    bundle_topic = in_namespace(BUNDLE_TOPIC, namespace)
+    for topic in [*image_topics, bundle_topic]:
+        expected = BUNDLE_TYPE if topic == bundle_topic else IMAGE_TYPE
         if topic in bag.topics and bag.topics[topic] != expected:
             raise BagError(f"bag {bag.path}: {topic} holds {bag.topics[topic]}, expected {expected}")
     without_images = [t for t in image_topics if not bag.counts.get(t)]
-    has_bundles = bool(bag.counts.get(BUNDLE_TOPIC))
+    has_bundles = bool(bag.counts.get(bundle_topic))
     if source == "images" and without_images or source == "auto" and without_images and not has_bundles:
         raise BagError(f"bag {bag.path} has no camera images on {without_images}"
-                       + ("" if has_bundles else f" and no image bundles on {BUNDLE_TOPIC}")
+                       + ("" if has_bundles else f" and no image bundles on {bundle_topic}")
                        + f": record them (the sensor description {sensor.source or sensor.name} names cameras "
-                       f"{list(sensor.camera_ids)})")
+                       f"{list(sensor.camera_ids)})" + _namespaces_hint(bag, namespace))
     if source == "bundles" and not has_bundles:
-        raise BagError(f"bag {bag.path} has no image bundles on {BUNDLE_TOPIC}: evaluate its camera images instead "
-                       "(--source images) or record the bundle node's output")
+        raise BagError(f"bag {bag.path} has no image bundles on {bundle_topic}: evaluate its camera images instead "
+                       "(--source images) or record the bundle node's output" + _namespaces_hint(bag, namespace))
     if source == "auto":
         return "bundles" if without_images else "images"
     return source
+
+
+def _namespaces_hint(bag: BagReader, namespace: str) -> str:
+    """"; ..." naming the namespaces other than `namespace` whose graphs the bag holds (found by their bundle or
+    ground-truth topics), "" for none."""
+    found = sorted({topic.removesuffix(suffix) or ROOT_NAMESPACE for topic in bag.topics
+                    for suffix in (BUNDLE_TOPIC, GROUND_TRUTH_TOPIC) if topic.endswith(suffix)}
+                   - {graph_namespace(namespace)})
+    return f"; the bag holds the topics of graphs in the namespaces {found} (--namespace)" if found else ""
 
 
 class FrameReader:
@@ -179,12 +198,13 @@ class FrameReader:
         return BundleFrame(stamp_s, frame, camera_ok, bundle_problem(camera_ids, images, self.camera_ids) is not None)
 
 
-def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader) -> Iterator[BundleFrame]:
-    """The camera images bundled as bundle_node bundles them (same synchroniser, same default settings, images whose
-    stamp no bundle can carry dropped)."""
+def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader,
+                  namespace: str = ROOT_NAMESPACE) -> Iterator[BundleFrame]:
+    """The camera images (of the graph in `namespace`) bundled as bundle_node bundles them (same synchroniser, same
+    default settings, images whose stamp no bundle can carry dropped)."""
     sync: ApproximateTimeSync[Image] = ApproximateTimeSync(sensor.camera_ids,
                                                            **camera_sync_settings(sensor.frame_rate_hz))
-    cameras = camera_topics(sensor)
+    cameras = camera_topics(sensor, namespace)
     for topic, _, time_ns, raw in bag.messages(list(cameras)):
         msg = deserialize(raw, Image, topic, time_ns)
         stamp_s = time_to_seconds(msg.header.stamp)
@@ -198,11 +218,12 @@ def image_bundles(bag: BagReader, sensor: SensorDescription, reader: FrameReader
             reader.skipped[f"images dropped by the synchroniser ({reason})"] = count
 
 
-def recorded_bundles(bag: BagReader, reader: FrameReader) -> Iterator[BundleFrame]:
-    """The recorded ImageBundles; the ones the recorder never got (gaps in their numbers) are counted as skipped, and
-    so are bundles stamped before 1970 (or at 2**31 s and later), which fusion_node skips too."""
+def recorded_bundles(bag: BagReader, reader: FrameReader, namespace: str = ROOT_NAMESPACE) -> Iterator[BundleFrame]:
+    """The recorded ImageBundles (of the graph in `namespace`); the ones the recorder never got (gaps in their
+    numbers) are counted as skipped, and so are bundles stamped before 1970 (or at 2**31 s and later), which
+    fusion_node skips too."""
     sequence = BundleSequence()
-    for topic, _, time_ns, raw in bag.messages([BUNDLE_TOPIC]):
+    for topic, _, time_ns, raw in bag.messages([in_namespace(BUNDLE_TOPIC, namespace)]):
         msg = deserialize(raw, ImageBundle, topic, time_ns)
         sequence.add(msg.sequence)
         if not is_ros_stamp(msg.header.stamp):  # as fusion_node skips it: no estimate can carry its stamp
@@ -280,33 +301,36 @@ def live_estimation(predictor: ForcePredictor, sensor: SensorDescription, refere
 def evaluate_bag(path: str | Path, sensor: SensorDescription, predictor: ForcePredictor, source: str = "auto",
                  reference_bundles: int = REFERENCE_BUNDLES, truth_topic: str | None = None,
                  match_tolerance_s: float = MATCH_TOLERANCE_S,
-                 contact_level_n: float = CONTACT_LEVEL_N) -> BagEvaluation:
+                 contact_level_n: float = CONTACT_LEVEL_N, namespace: str = ROOT_NAMESPACE) -> BagEvaluation:
     """Estimate the force of every bundle of the bag after the reference ones and match the ground truth.
 
     truth_topic: None for the simulator's (optional in the bag); a topic named here must be in the bag.
     contact_level_n: the estimated total Fz from which an estimate reports contact (metrics' "contact").
+    namespace: of the graph whose topics are evaluated (its images or bundles, and the simulator's ground truth).
     """
     live = live_estimation(predictor, sensor, reference_bundles)
+    simulator_truth = in_namespace(GROUND_TRUTH_TOPIC, namespace)
     with BagReader(path) as bag:
-        source = choose_source(bag, sensor, source)
-        # Images of cameras the description does not name are not read: those of another sensor's description, say
-        # (left out without a word before; review)
-        cameras = camera_topics(sensor)
+        source = choose_source(bag, sensor, source, namespace)
+        # Images of cameras the description does not name are not read: those of another sensor's description, or
+        # of the graph in another namespace, say (left out without a word before; review)
+        cameras = camera_topics(sensor, namespace)
         other_images = tuple(sorted(t for t, kind in bag.topics.items()
                                     if kind == IMAGE_TYPE and t not in cameras and bag.counts[t]))
         reader = FrameReader(sensor, predictor.image_size)
         try:
-            truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic or GROUND_TRUTH_TOPIC,
+            truth_stamps, truth = read_ground_truth(bag, sensor, truth_topic or simulator_truth,
                                                     required=truth_topic is not None)
         except DefinitionMismatchError:
             if truth_topic is not None:
                 raise
             # The simulator's ground truth is optional: a bag recorded before ForceDistribution changed is still
             # evaluated, without it, and the summary says why it has no metrics.
-            reason = f"ground truth on {GROUND_TRUTH_TOPIC} recorded with another ForceDistribution definition"
-            reader.skipped[reason] = bag.counts[GROUND_TRUTH_TOPIC]
+            reason = f"ground truth on {simulator_truth} recorded with another ForceDistribution definition"
+            reader.skipped[reason] = bag.counts[simulator_truth]
             truth_stamps, truth = no_ground_truth(sensor)
-        frames = image_bundles(bag, sensor, reader) if source == "images" else recorded_bundles(bag, reader)
+        frames = (image_bundles(bag, sensor, reader, namespace) if source == "images"
+                  else recorded_bundles(bag, reader, namespace))
         bundles = after_reference = 0
         stamps, estimates, camera_ok, off_reference = [], [], [], []
         for frame in frames:

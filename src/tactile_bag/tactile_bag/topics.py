@@ -1,4 +1,9 @@
-"""The message types of the tactile graph's topics (docs/nodes.md), and the QoS to record and replay them."""
+"""The message types of the tactile graph's topics (docs/nodes.md), and the QoS to record and replay them.
+
+A bag holds the topics of a graph in the root namespace (/tactile/...) or, for a graph run in a namespace (two
+sensors on one robot, docs/nodes.md), under it (/left/tactile/...): the functions here take that namespace ("left"
+or "/left", default the root one).
+"""
 
 from __future__ import annotations
 
@@ -9,8 +14,10 @@ from tactile_conversions.topics import (
     ESTIMATE_TOPIC,
     GROUND_TRUTH_TOPIC,
     MARKERS_TOPIC,
+    ROOT_NAMESPACE,
     WRENCH_TOPIC,
     camera_topic,
+    in_namespace,
 )
 from tactile_description import SensorDescription
 
@@ -22,28 +29,30 @@ FORCES_TYPE = "tactile_msgs/msg/ForceDistribution"
 RELIABLE_DEPTH = 100
 
 
-def camera_topics(sensor: SensorDescription) -> dict[str, str]:
+def camera_topics(sensor: SensorDescription, namespace: str = ROOT_NAMESPACE) -> dict[str, str]:
     """The image topic of each camera of `sensor` -> its camera id, in the description's camera order."""
-    return {camera_topic(c): c for c in sensor.camera_ids}
+    return {in_namespace(camera_topic(c), namespace): c for c in sensor.camera_ids}
 
 
 def other_sensor_hint(sensor: SensorDescription) -> str:
     """What images on topics of no camera of `sensor` suggest (record and eval say it where they see them)."""
-    return f"the cameras of another sensor description than {sensor.source}? (--sensor FILE)"
+    return (f"the cameras of another sensor description than {sensor.source} (--sensor FILE), or of a graph in "
+            "another namespace (--namespace)?")
 
 
-def stack_topics(sensor: SensorDescription) -> dict[str, str]:
+def stack_topics(sensor: SensorDescription, namespace: str = ROOT_NAMESPACE) -> dict[str, str]:
     """Every topic the graph of `sensor` publishes -> its message type."""
-    topics = dict.fromkeys(camera_topics(sensor), IMAGE_TYPE)
-    topics.update({BUNDLE_TOPIC: BUNDLE_TYPE, ESTIMATE_TOPIC: FORCES_TYPE, GROUND_TRUTH_TOPIC: FORCES_TYPE,
-                   WRENCH_TOPIC: "geometry_msgs/msg/WrenchStamped",
-                   MARKERS_TOPIC: "visualization_msgs/msg/MarkerArray"})
+    topics = dict.fromkeys(camera_topics(sensor, namespace), IMAGE_TYPE)
+    topics.update({in_namespace(topic, namespace): msgtype for topic, msgtype in (
+        (BUNDLE_TOPIC, BUNDLE_TYPE), (ESTIMATE_TOPIC, FORCES_TYPE), (GROUND_TRUTH_TOPIC, FORCES_TYPE),
+        (WRENCH_TOPIC, "geometry_msgs/msg/WrenchStamped"), (MARKERS_TOPIC, "visualization_msgs/msg/MarkerArray"))})
     return topics
 
 
-def default_record_topics(sensor: SensorDescription) -> list[str]:
+def default_record_topics(sensor: SensorDescription, namespace: str = ROOT_NAMESPACE) -> list[str]:
     """What `tactile-bag record` takes without --topics: the images, the bundles, the estimate and the truth."""
-    return [*camera_topics(sensor), BUNDLE_TOPIC, ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC]
+    return [*camera_topics(sensor, namespace),
+            *(in_namespace(topic, namespace) for topic in (BUNDLE_TOPIC, ESTIMATE_TOPIC, GROUND_TRUTH_TOPIC))]
 
 
 def absolute_topic(name: str, example: str = BUNDLE_TOPIC) -> str:

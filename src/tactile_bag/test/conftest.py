@@ -26,7 +26,7 @@ from tactile_bag.topics import BUNDLE_TYPE, FORCES_TYPE, IMAGE_TYPE
 from tactile_conversions.forces import force_distribution_msg
 from tactile_conversions.images import mono8_to_msg
 from tactile_conversions.ros_time import seconds_to_time
-from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic
+from tactile_conversions.topics import BUNDLE_TOPIC, GROUND_TRUTH_TOPIC, camera_topic, in_namespace
 from tactile_description import FORCE_COMPONENTS, load_sensor
 from tactile_fusion.artifacts import save_model
 from tactile_fusion.model import ModelConfig
@@ -50,8 +50,12 @@ def sim_frames(sensor):
 
 
 def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool = False, truth: bool = True,
-                  truth_offset_s: float = 0.0, seed: int = 0, truth_definition: str | None = None) -> list[float]:
+                  truth_offset_s: float = 0.0, seed: int = 0, truth_definition: str | None = None,
+                  namespaces: tuple[str, ...] = ("/",)) -> list[float]:
     """Write `frames` into a new bag; returns each frame's capture time (s).
+
+    namespaces: the graphs whose topics carry them (the same messages in each), as a bag recorded from graphs in
+    those namespaces holds them.
 
     Images are stamped in [capture, capture + JITTER_S], the ground truth at capture + truth_offset_s.
     truth_definition: the ForceDistribution definition the ground-truth topic is recorded with (its type hash),
@@ -61,6 +65,11 @@ def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool
     rng = np.random.default_rng(seed)
     captures = []
     with BagWriter(path) as bag:
+
+        def write(topic: str, msgtype: str, time_ns: int, raw: bytes) -> None:
+            for namespace in namespaces:
+                bag.write(in_namespace(topic, namespace), msgtype, time_ns, raw)
+
         if truth_definition is not None:
             bag.typestore.register(get_types_from_msg(truth_definition, FORCES_TYPE))
         for frame in frames:
@@ -73,12 +82,12 @@ def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool
                     stamp = seconds_to_time(capture_s + rng.uniform(0.0, JITTER_S))
                     msgs.append(mono8_to_msg(frame.images[i], stamp, f"{camera_id}_optical"))
                     if images:
-                        bag.write(camera_topic(camera_id), IMAGE_TYPE, receive_ns + i, serialize_message(msgs[-1]))
+                        write(camera_topic(camera_id), IMAGE_TYPE, receive_ns + i, serialize_message(msgs[-1]))
             if truth:
                 truth_stamp = seconds_to_time(capture_s + truth_offset_s)
                 msg = force_distribution_msg(frame.bin_forces_n, sensor.grid, truth_stamp, sensor.frame_id,
                                              sensor.camera_ids, [], FORCE_COMPONENTS)
-                bag.write(GROUND_TRUTH_TOPIC, FORCES_TYPE, receive_ns + 100, serialize_message(msg))
+                write(GROUND_TRUTH_TOPIC, FORCES_TYPE, receive_ns + 100, serialize_message(msg))
             if bundles and msgs:
                 stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs]
                 bundle = ImageBundle(sequence=frame.index,
@@ -86,7 +95,7 @@ def write_sim_bag(path: Path, sensor, frames, images: bool = True, bundles: bool
                                      images=msgs, max_stamp_spread_s=max(stamps) - min(stamps))
                 bundle.header.stamp = seconds_to_time(float(np.median(stamps)))
                 bundle.header.frame_id = sensor.frame_id
-                bag.write(BUNDLE_TOPIC, BUNDLE_TYPE, receive_ns + 1_000_000, serialize_message(bundle))
+                write(BUNDLE_TOPIC, BUNDLE_TYPE, receive_ns + 1_000_000, serialize_message(bundle))
     return captures
 
 

@@ -414,3 +414,37 @@ def test_images_of_cameras_the_description_does_not_name_are_named_not_evaluated
     assert main(["eval", str(tmp_path / "clean"), "--model", str(model_dir), "--backend", "torch", "--json"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["other_image_topics"] == [] and "also holds images" not in err
+
+
+def test_a_bag_of_two_sensors_graphs_is_evaluated_one_namespace_at_a_time(tmp_path, write_bag, sensor, sim_frames,
+                                                                          model_dir, capsys):
+    """Two sensors on one robot, each graph in a namespace (docs/nodes.md): `--namespace` evaluates one graph's images
+    or bundles against its own ground truth, as the same frames in the root namespace; without it the bag is refused,
+    naming the namespaces it holds."""
+    write_bag(tmp_path / "root", sensor, sim_frames, bundles=True)
+    write_bag(tmp_path / "two", sensor, sim_frames, bundles=True, namespaces=("/left", "/right"))
+    args = ["--model", str(model_dir), "--backend", "torch", "--json"]
+    for source in ("images", "bundles"):
+        assert main(["eval", str(tmp_path / "root"), "--source", source, *args]) == 0
+        root = json.loads(capsys.readouterr().out)
+        for namespace, other in (("left", "right"), ("/right", "left")):
+            assert main(["eval", str(tmp_path / "two"), "--namespace", namespace, "--source", source, *args]) == 0
+            summary = json.loads(capsys.readouterr().out)
+            assert summary["matched_with_ground_truth"] == root["matched_with_ground_truth"] >= 29, summary
+            assert summary["rmse_bin_n"] == pytest.approx(root["rmse_bin_n"], rel=1e-6, abs=1e-9)
+            assert summary["rmse_total_n"] == pytest.approx(root["rmse_total_n"], rel=1e-6, abs=1e-9)
+            assert summary["other_image_topics"] == [f"/{other}/tactile/{c}/image" for c in sensor.camera_ids]
+    assert main(["eval", str(tmp_path / "two"), *args]) == 2
+    err = capsys.readouterr().err
+    assert "has no camera images on ['/tactile/cam0/image', '/tactile/cam1/image'" in err
+    assert "and no image bundles on /tactile/image_bundle" in err
+    assert "the bag holds the topics of graphs in the namespaces ['/left', '/right'] (--namespace)" in err
+
+
+def test_record_and_eval_refuse_a_namespace_ros_would_refuse(tmp_path, model_dir, capsys):
+    for command in (["record", str(tmp_path / "bag"), "--duration", "1"], ["eval", str(tmp_path / "bag")]):
+        with pytest.raises(SystemExit) as stop:
+            main([*command, "--namespace", "left arm"])
+        assert stop.value.code == 2
+        assert "argument --namespace: namespace 'left arm': not a ROS namespace" in capsys.readouterr().err
+    assert not (tmp_path / "bag").exists()

@@ -17,7 +17,6 @@ import json
 import statistics
 import sys
 import time
-from argparse import ArgumentTypeError
 from collections import deque
 from pathlib import Path
 
@@ -42,7 +41,7 @@ from tactile_conversions.topics import (
     GROUND_TRUTH_TOPIC,
     MATCH_TOLERANCE_S,
     ROOT_NAMESPACE,
-    graph_namespace,
+    namespace_argument,
     node_topic,
 )
 from tactile_description import BinGrid, SensorConfigError, default_sensor_path
@@ -128,14 +127,6 @@ class Monitor(Node):
             "estimated_components": [list(c) for c in sorted(self.estimated_components)],
             "contract_violations": self.violations[:10],
         }
-
-
-def namespace_argument(text: str) -> str:
-    """--namespace: as topics.graph_namespace gives it; a name ROS refuses is a usage error (status 2) saying why."""
-    try:
-        return graph_namespace(text)
-    except ValueError as exc:
-        raise ArgumentTypeError(str(exc)) from None
 
 
 @stops_quietly_on_closed_pipe

@@ -8,6 +8,8 @@ each run their own graph, /left/tactile/force_distribution beside /right/tactile
 
 from __future__ import annotations
 
+from argparse import ArgumentTypeError
+
 BUNDLE_TOPIC = "/tactile/image_bundle"
 ESTIMATE_TOPIC = "/tactile/force_distribution"
 GROUND_TRUTH_TOPIC = "/tactile/ground_truth/force_distribution"
@@ -54,6 +56,15 @@ def graph_namespace(text: str, parent: str = ROOT_NAMESPACE) -> str:
         reason = str(exc).splitlines()[0].removeprefix("Invalid namespace: ").rstrip(":")
         raise ValueError(f"namespace {text!r}: not a ROS namespace ({reason})") from None
     return name
+
+
+def namespace_argument(text: str) -> str:
+    """`--namespace` of a command-line tool (argparse type): as `graph_namespace` gives it; a name ROS refuses is a
+    usage error (status 2) saying why."""
+    try:
+        return graph_namespace(text)
+    except ValueError as exc:
+        raise ArgumentTypeError(str(exc)) from None
 
 
 def in_namespace(topic: str, namespace: str) -> str:
