@@ -44,11 +44,11 @@ from tactile_fusion.metrics import CONTACT_LEVEL_N, contact_level_argument, cont
 def cmd_record(args) -> int:
     sensor = load_sensor(args.sensor)
     topics = args.topics or default_record_topics(sensor, args.namespace)
+    known = stack_topics(sensor, args.namespace)
     init_ros()
     started = time.monotonic()
     try:
-        recording = record(args.out, topics, stack_topics(sensor, args.namespace), args.duration,
-                           args.discovery_timeout, args.wait)
+        recording = record(args.out, topics, known, args.duration, args.discovery_timeout, args.wait)
     except (KeyboardInterrupt, Exception) as exc:
         if not stopped_by_signal(exc):
             raise
@@ -66,7 +66,7 @@ def cmd_record(args) -> int:
           f"{args.out}: "
           + ", ".join(f"{t} {n}" for t, n in counts.items())
           + (f" (nothing received on {', '.join(silent)})" if silent else ""))
-    silent_images = [t for t in silent if stack_topics(sensor, args.namespace).get(t) == IMAGE_TYPE]
+    silent_images = [t for t in silent if known.get(t) == IMAGE_TYPE]
     if silent_images and recording.other_images:
         print(f"tactile-bag record: images are published on {', '.join(recording.other_images)}, not recorded: "
               f"{other_sensor_hint(sensor)}", file=sys.stderr)

@@ -18,6 +18,14 @@ def refused(capsys, program: str, args: list[str]) -> str:
     return err
 
 
+def usage_error(capsys, main, args: list[str]) -> str:
+    """Run a tool's main with `args` that its argument parser refuses: status 2; stderr, which is returned."""
+    with pytest.raises(SystemExit) as stop:
+        main(args)
+    assert stop.value.code == 2
+    return capsys.readouterr().err
+
+
 @pytest.mark.parametrize("program", sorted(TOOLS))
 def test_an_unknown_scene_is_refused_before_the_log_directory_is_made(program, capsys, tmp_path):
     logs = tmp_path / "logs"
@@ -58,19 +66,13 @@ def test_a_log_directory_that_cannot_be_made_is_refused(program, capsys, tmp_pat
 def test_latency_refuses_a_markers_rate_the_fusion_node_would_refuse(capsys, tmp_path, rate):
     """--markers-rate 5000 passed, and the graph stopped after its start with the fusion node's error about
     markers_rate_hz and publish_markers, neither an option of the tool (review)."""
-    with pytest.raises(SystemExit) as stop:
-        latency.main(["--markers-rate", rate, "--log-dir", str(tmp_path / "logs")])
-    assert stop.value.code == 2
-    assert f"argument --markers-rate: must be a finite number of Hz in [1.15741e-05, 1000], got '{rate}'" in \
-        capsys.readouterr().err
+    err = usage_error(capsys, latency.main, ["--markers-rate", rate, "--log-dir", str(tmp_path / "logs")])
+    assert f"argument --markers-rate: must be a finite number of Hz in [1.15741e-05, 1000], got '{rate}'" in err
     assert not (tmp_path / "logs").exists()
 
 
 @pytest.mark.parametrize("namespace", ["1st", "left arm", "robot//left"])
 def test_demo_refuses_a_namespace_ros_would_refuse_before_any_node_starts(capsys, tmp_path, namespace):
-    with pytest.raises(SystemExit) as stop:
-        demo.main(["--namespace", namespace, "--log-dir", str(tmp_path / "logs")])
-    assert stop.value.code == 2
-    assert f"argument --namespace: namespace '{namespace}': not a ROS namespace (namespace must not" in \
-        capsys.readouterr().err
+    err = usage_error(capsys, demo.main, ["--namespace", namespace, "--log-dir", str(tmp_path / "logs")])
+    assert f"argument --namespace: namespace '{namespace}': not a ROS namespace (namespace must not" in err
     assert not (tmp_path / "logs").exists()
